@@ -1,0 +1,42 @@
+# nmt_ros: make venv | demo | test | lint
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.nmt_stamp
+
+# Every ROS 2 process we start stays on loopback (no DDS packet leaves the machine).
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export ROS_LOCALHOST_ONLY ?= 1
+export AMENT_PREFIX_PATH := $(abspath $(VENV))
+export PYTHONDONTWRITEBYTECODE := 1
+
+.PHONY: venv demo test lint reproduce bench clean-venv
+
+# The venv is (re)built only when the pinned requirements or the package metadata change.
+$(STAMP): requirements.txt setup.py setup.cfg package.xml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check wheel==0.48.0
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements.txt
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: venv
+	$(VENV)/bin/nmt demo --out demo_out
+
+test: venv
+	$(PY) -m pytest -q -p no:cacheprovider test
+
+lint: venv
+	$(VENV)/bin/ruff check nmt_ros msg_adapters test bench launch setup.py
+
+reproduce: venv
+	$(VENV)/bin/nmt reproduce --out out/reproduce
+
+bench: venv
+	$(PY) bench/run_all.py
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,1 @@
+"""Arrays <-> ROS 2 messages: the only place where the two meet."""

@@ -1,0 +1,1 @@
+"""The planar jumper model: skeleton, contact, muscles, paths, passive joints (no ROS)."""
