@@ -1,0 +1,178 @@
+"""``sensor_msgs/msg/JointState`` <-> (stamp, names, position, velocity, effort) arrays.
+
+Empty arrays: we never publish one. rclpy (Fast-CDR typesupport) serialises a JointState
+whose ``float64[]`` arrays are partly empty with up to 8 extra trailing bytes, and the
+``rosbags`` reader, which our bags must satisfy, rejects such a message ("CDR message size
+mismatch"; measured: every combination with an empty ``position``, ``velocity`` or
+``effort`` fails except empty position followed by two filled arrays). So every message built
+here fills **all three arrays with one value per name**; a quantity the topic does not carry
+is filled with NaN (:data:`NOT_PROVIDED`), meaning "not provided". E.g. joint torques:
+``effort`` = torques, ``position`` and ``velocity`` NaN. Each topic fills the same arrays in
+every message, so its layout (and serialised size) is constant, which also lets
+``nmt_ros.io.cdr_arrays`` decode a whole bag topic at once.
+
+Readers map empty arrays of foreign messages to NaN as well, so the arrays returned here are
+always ``[k]`` (single message) or ``[n, k]`` (batch). Provided data are validated: NaN/inf,
+wrong lengths, missing or duplicate names raise ``ValueError`` with a precise message.
+"""
+from __future__ import annotations
+
+import array
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+
+from nmt_ros.io.series import JointStateSeries
+
+from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
+from .validation import as_matrix, as_vector, check_finite, check_names, reorder_index
+
+NOT_PROVIDED = float('nan')
+FIELDS = ('position', 'velocity', 'effort')
+
+
+@dataclass(frozen=True)
+class JointStateSample:
+    """One JointState as arrays (NaN where the message carried no value)."""
+
+    stamp_ns: int
+    names: tuple[str, ...]
+    position: np.ndarray  # [k]
+    velocity: np.ndarray  # [k]
+    effort: np.ndarray    # [k]
+    frame_id: str = ''
+
+
+def _doubles(values: np.ndarray) -> array.array:
+    out = array.array('d')
+    out.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
+    return out
+
+
+def to_joint_state(stamp: Any, names: Sequence[str], position: Any = None,
+                   velocity: Any = None, effort: Any = None, *,
+                   frame_id: str = '') -> JointState:
+    """Build one JointState; fields left ``None`` are NaN-filled (see module docstring)."""
+    names = check_names(names)
+    k = len(names)
+    msg = JointState(header=Header(stamp=to_time(stamp), frame_id=frame_id), name=list(names))
+    given = {'position': position, 'velocity': velocity, 'effort': effort}
+    if all(v is None for v in given.values()):
+        raise ValueError('JointState needs at least one of position, velocity, effort')
+    for field, values in given.items():
+        vec = np.full(k, NOT_PROVIDED) if values is None else as_vector(values, k, field, names)
+        setattr(msg, field, _doubles(vec))
+    return msg
+
+
+def _field(msg: JointState, field: str, k: int) -> np.ndarray:
+    values = np.frombuffer(getattr(msg, field), dtype=np.float64) if len(
+        getattr(msg, field)) else np.full(k, NOT_PROVIDED)
+    if values.shape[0] != k:
+        raise ValueError(f'JointState {field} has {values.shape[0]} values for {k} names')
+    return values
+
+
+def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
+                     require: Iterable[str] = ()) -> JointStateSample:
+    """One JointState -> arrays, optionally reordered to ``names``.
+
+    ``require`` lists fields that must be present and finite (e.g. ``('position',)`` for
+    observed angles); other fields may hold NaN.
+    """
+    got = check_names(msg.name, 'JointState name')
+    k = len(got)
+    fields = {f: _field(msg, f, k) for f in FIELDS}
+    if names is not None:
+        names = check_names(names)
+        index = reorder_index(got, names, 'JointState name')
+        fields = {f: v[index] for f, v in fields.items()}
+        got = names
+    for f in require:
+        check_finite(fields[f], f'JointState {f}', got)
+    return JointStateSample(stamp_ns=time_to_ns(msg.header.stamp), names=tuple(got),
+                            frame_id=msg.header.frame_id,
+                            **{f: np.array(v) for f, v in fields.items()})
+
+
+def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = None,
+                             velocity: Any = None, effort: Any = None, *,
+                             frame_id: str = '') -> list[JointState]:
+    """``n`` stamps and ``[n, k]`` arrays -> ``n`` JointState messages (validated at once)."""
+    names = check_names(names)
+    stamp_ns = stamps_to_ns(stamps)
+    n, k = stamp_ns.shape[0], len(names)
+    given = {'position': position, 'velocity': velocity, 'effort': effort}
+    if all(v is None for v in given.values()):
+        raise ValueError('JointState needs at least one of position, velocity, effort')
+    blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None else as_matrix(v, n, k, f, names))
+              for f, v in given.items()}
+    raw = {f: np.ascontiguousarray(b).tobytes() for f, b in blocks.items()}
+    row = 8 * k
+    name_list = list(names)
+    out = []
+    for i, stamp in enumerate(times_from_ns(stamp_ns)):
+        msg = JointState(header=Header(stamp=stamp, frame_id=frame_id), name=name_list)
+        for f in FIELDS:
+            values = array.array('d')
+            values.frombytes(raw[f][i * row:(i + 1) * row])
+            setattr(msg, f, values)
+        out.append(msg)
+    return out
+
+
+def joint_states_to_arrays(msgs: Sequence[JointState], names: Sequence[str] | None = None,
+                           require: Iterable[str] = ()) -> JointStateSeries:
+    """``n`` JointState messages -> :class:`~nmt_ros.io.series.JointStateSeries`.
+
+    All messages must carry the same names (in any order when ``names`` is given, else in
+    the first message's order); empty arrays become NaN; ``require`` as in
+    :func:`from_joint_state`.
+    """
+    n = len(msgs)
+    if n == 0:
+        k = 0 if names is None else len(names)
+        empty = np.empty((0, k))
+        return JointStateSeries(np.empty(0, dtype=np.int64), tuple(names or ()), empty,
+                                empty.copy(), empty.copy())
+    first = tuple(msgs[0].name)
+    target = check_names(names if names is not None else first)
+    k = len(target)
+    stamp_ns = np.fromiter((time_to_ns(m.header.stamp) for m in msgs), dtype=np.int64, count=n)
+    same = all(tuple(m.name) == first for m in msgs)
+    if not same and names is None:
+        i = next(i for i, m in enumerate(msgs) if tuple(m.name) != first)
+        raise ValueError(f'JointState message {i} has names {list(msgs[i].name)}, expected '
+                         f'{list(first)} as in message 0')
+    out = {}
+    if same:
+        index = reorder_index(first, target, 'JointState name')
+        kk = len(first)
+        for f in FIELDS:
+            lengths = np.fromiter((len(getattr(m, f)) for m in msgs), dtype=np.int64, count=n)
+            if (lengths == kk).all():
+                block = np.frombuffer(b''.join(getattr(m, f).tobytes() for m in msgs),
+                                      dtype=np.float64).reshape(n, kk)
+            else:
+                block = np.stack([_field(m, f, kk) for m in msgs])
+            out[f] = block[:, index]
+    else:
+        samples = [from_joint_state(m, target) for m in msgs]
+        for f in FIELDS:
+            out[f] = np.stack([getattr(s, f) for s in samples])
+    for f in require:
+        check_finite(out[f], f'JointState {f}', target)
+    return JointStateSeries(stamp_ns=stamp_ns, names=target, frame_id=msgs[0].header.frame_id,
+                            **out)
+
+
+def series_to_joint_states(series: JointStateSeries) -> list[JointState]:
+    """A series back to messages: an all-NaN field is "not provided", others are validated."""
+    fields = {f: (None if np.isnan(getattr(series, f)).all() else getattr(series, f))
+              for f in FIELDS}
+    return joint_states_from_arrays(series.stamp_ns, series.names, frame_id=series.frame_id,
+                                    **fields)

@@ -1,0 +1,205 @@
+"""Decode CDR-serialised JointState / WrenchStamped messages straight into numpy arrays.
+
+A topic's messages normally share one layout (same joint names, same array lengths, same
+frame id), hence the same byte length. Then the serialised messages are stacked into a
+``[n, nbytes]`` uint8 matrix and every field is a column slice: no per-message Python work.
+The layout is taken from the first message; a message that differs in length or in any
+structural byte (string lengths and characters, sequence counts) is decoded individually.
+Padding bytes are ignored (rclpy leaves them uninitialised).
+
+CDR (XCDR1, plain): 4-byte encapsulation header (byte 1: 0x01 little endian, 0x00 big
+endian), then each primitive aligned to its size relative to the end of that header; strings
+are ``uint32`` length (including the NUL) + bytes; sequences are ``uint32`` count + elements.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+import struct
+
+import numpy as np
+
+from .series import JointStateSeries, WrenchSeries
+
+_HEADER = 4  # encapsulation header bytes
+
+
+class _Cursor:
+    """Sequential CDR reader that also records which bytes carry structure vs values."""
+
+    def __init__(self, data: bytes) -> None:
+        if len(data) < _HEADER + 8:
+            raise ValueError(f'CDR message too short ({len(data)} bytes)')
+        self.data = data
+        self.little = data[1] == 1
+        self.order = '<' if self.little else '>'
+        self.pos = _HEADER
+        # byte ranges that must match between messages decoded as one block
+        self.structural: list[tuple[int, int]] = [(0, _HEADER)]
+
+    def align(self, size: int) -> None:
+        self.pos += (-(self.pos - _HEADER)) % size
+
+    def _unpack(self, fmt: str, size: int) -> int:
+        self.align(size)
+        if self.pos + size > len(self.data):
+            raise ValueError('CDR message truncated')
+        (value,) = struct.unpack_from(self.order + fmt, self.data, self.pos)
+        self.pos += size
+        return value
+
+    def count(self) -> int:
+        start = (self.pos + (-(self.pos - _HEADER)) % 4)
+        value = self._unpack('I', 4)
+        self.structural.append((start, start + 4))
+        return value
+
+    def string(self) -> str:
+        n = self.count()
+        if n == 0 or self.pos + n > len(self.data):
+            raise ValueError('bad CDR string')
+        text = self.data[self.pos:self.pos + n - 1].decode('utf-8')
+        self.structural.append((self.pos, self.pos + n))
+        self.pos += n
+        return text
+
+    def stamp(self) -> tuple[int, int]:
+        sec = self._unpack('i', 4)
+        nanosec = self._unpack('I', 4)
+        return sec, nanosec
+
+    def float64s(self, n: int) -> tuple[int, np.ndarray]:
+        """Offset and values of ``n`` float64 (aligned only when ``n > 0``)."""
+        if n == 0:
+            return self.pos, np.empty(0)
+        self.align(8)
+        end = self.pos + 8 * n
+        if end > len(self.data):
+            raise ValueError('CDR message truncated')
+        values = np.frombuffer(self.data, dtype=self.order + 'f8', count=n, offset=self.pos)
+        offset, self.pos = self.pos, end
+        return offset, values
+
+
+def _stamps(matrix: np.ndarray, little: bool) -> np.ndarray:
+    order = '<' if little else '>'
+    raw = np.ascontiguousarray(matrix[:, _HEADER:_HEADER + 8])
+    sec = raw[:, :4].copy().view(order + 'i4')[:, 0].astype(np.int64)
+    nanosec = raw[:, 4:].copy().view(order + 'u4')[:, 0].astype(np.int64)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _floats(matrix: np.ndarray, offset: int, n: int, little: bool) -> np.ndarray:
+    block = np.ascontiguousarray(matrix[:, offset:offset + 8 * n])
+    return block.view(('<' if little else '>') + 'f8').astype(np.float64, copy=False)
+
+
+def _uniform_rows(blobs: Sequence[bytes],
+                  structural: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Stack the messages that have the first message's length and structure.
+
+    Returns the ``[m, nbytes]`` matrix of those messages and their boolean mask over ``blobs``.
+    """
+    length = len(blobs[0])
+    lengths = np.fromiter((len(b) for b in blobs), dtype=np.int64, count=len(blobs))
+    same_len = lengths == length
+    chosen = blobs if same_len.all() else [b for b, ok in zip(blobs, same_len) if ok]
+    matrix = np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(len(chosen), length)
+    index = np.concatenate([np.arange(a, b) for a, b in structural])
+    same_struct = (matrix[:, index] == matrix[0, index]).all(axis=1)
+    mask = np.zeros(len(blobs), dtype=bool)
+    mask[np.flatnonzero(same_len)[same_struct]] = True
+    return matrix[same_struct], mask
+
+
+def _parse_joint_state(blob: bytes) -> dict:
+    cur = _Cursor(blob)
+    sec, nanosec = cur.stamp()
+    frame_id = cur.string()
+    names = tuple(cur.string() for _ in range(cur.count()))
+    fields = {}
+    for field in ('position', 'velocity', 'effort'):
+        n = cur.count()
+        if n not in (0, len(names)):
+            raise ValueError(
+                f'JointState {field} has {n} values for {len(names)} names')
+        fields[field] = cur.float64s(n)
+    return {'stamp_ns': sec * 1_000_000_000 + nanosec, 'frame_id': frame_id, 'names': names,
+            'fields': fields, 'structural': cur.structural, 'little': cur.little}
+
+
+def decode_joint_states(blobs: Sequence[bytes],
+                        log_time_ns: np.ndarray | None = None) -> JointStateSeries:
+    """CDR ``sensor_msgs/msg/JointState`` messages -> :class:`JointStateSeries`.
+
+    All messages must carry the same joint names in the same order (``ValueError`` naming the
+    first offending message otherwise). Arrays a message leaves empty become NaN rows.
+    """
+    n = len(blobs)
+    if n == 0:
+        empty = np.empty((0, 0))
+        return JointStateSeries(np.empty(0, dtype=np.int64), (), empty, empty, empty, '',
+                                None if log_time_ns is None else np.asarray(log_time_ns))
+    first = _parse_joint_state(blobs[0])
+    names, k = first['names'], len(first['names'])
+    stamp_ns = np.empty(n, dtype=np.int64)
+    out = {f: np.full((n, k), np.nan) for f in ('position', 'velocity', 'effort')}
+    matrix, fast = _uniform_rows(blobs, first['structural'])
+    if matrix.shape[0]:
+        stamp_ns[fast] = _stamps(matrix, first['little'])
+        for field, (offset, values) in first['fields'].items():
+            if values.size:
+                out[field][fast] = _floats(matrix, offset, k, first['little'])
+    for i in np.flatnonzero(~fast):
+        parsed = _parse_joint_state(blobs[i])
+        if parsed['names'] != names:
+            raise ValueError(
+                f'JointState message {i} has names {list(parsed["names"])}, '
+                f'expected {list(names)} as in message 0')
+        stamp_ns[i] = parsed['stamp_ns']
+        for field, (_, values) in parsed['fields'].items():
+            if values.size:
+                out[field][i] = values
+    return JointStateSeries(
+        stamp_ns=stamp_ns, names=names, position=out['position'], velocity=out['velocity'],
+        effort=out['effort'], frame_id=first['frame_id'],
+        log_time_ns=None if log_time_ns is None else np.asarray(log_time_ns, dtype=np.int64))
+
+
+def _parse_wrench(blob: bytes) -> dict:
+    cur = _Cursor(blob)
+    sec, nanosec = cur.stamp()
+    frame_id = cur.string()
+    offset, values = cur.float64s(6)
+    return {'stamp_ns': sec * 1_000_000_000 + nanosec, 'frame_id': frame_id,
+            'offset': offset, 'values': values, 'structural': cur.structural,
+            'little': cur.little}
+
+
+def decode_wrenches(blobs: Sequence[bytes],
+                    log_time_ns: np.ndarray | None = None) -> WrenchSeries:
+    """CDR ``geometry_msgs/msg/WrenchStamped`` messages -> :class:`WrenchSeries`.
+
+    All messages must share one ``header.frame_id`` (``ValueError`` otherwise).
+    """
+    n = len(blobs)
+    log = None if log_time_ns is None else np.asarray(log_time_ns, dtype=np.int64)
+    if n == 0:
+        return WrenchSeries(np.empty(0, dtype=np.int64), '', np.empty((0, 3)),
+                            np.empty((0, 3)), log)
+    first = _parse_wrench(blobs[0])
+    stamp_ns = np.empty(n, dtype=np.int64)
+    values = np.empty((n, 6))
+    matrix, fast = _uniform_rows(blobs, first['structural'])
+    if matrix.shape[0]:
+        stamp_ns[fast] = _stamps(matrix, first['little'])
+        values[fast] = _floats(matrix, first['offset'], 6, first['little'])
+    for i in np.flatnonzero(~fast):
+        parsed = _parse_wrench(blobs[i])
+        if parsed['frame_id'] != first['frame_id']:
+            raise ValueError(
+                f'WrenchStamped message {i} has frame_id {parsed["frame_id"]!r}, expected '
+                f'{first["frame_id"]!r} as in message 0')
+        stamp_ns[i] = parsed['stamp_ns']
+        values[i] = parsed['values']
+    return WrenchSeries(stamp_ns=stamp_ns, frame_id=first['frame_id'], force=values[:, :3],
+                        torque=values[:, 3:], log_time_ns=log)

@@ -1,0 +1,45 @@
+"""Shared pytest fixtures for nmt_ros.
+
+The ROS environment is fixed here, at import time, before any test module imports rclpy:
+DDS stays on loopback and this test session gets a ROS_DOMAIN_ID of its own (1..100, from
+the pid; ``NMT_TEST_DOMAIN_ID`` overrides), so parallel sessions on one machine do not see
+each other's topics. ``AMENT_PREFIX_PATH`` points at the venv so the .msg files are found.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+import sys
+
+import pytest
+
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ['ROS_LOCALHOST_ONLY'] = '1'
+os.environ['ROS_DOMAIN_ID'] = os.environ.get('NMT_TEST_DOMAIN_ID', str(1 + os.getpid() % 100))
+os.environ['AMENT_PREFIX_PATH'] = sys.prefix
+
+
+@pytest.fixture
+def ros_context():
+    """A private, initialised rclpy Context (shut down after the test)."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture
+def tmp_bag(tmp_path: Path):
+    """Factory of fresh (not yet existing) bag folder paths: ``tmp_bag('name') -> Path``."""
+    counter = itertools.count()
+
+    def make(name: str = 'bag') -> Path:
+        return tmp_path / f'{name}_{next(counter)}'
+
+    return make
