@@ -22,7 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'launch': ('nmt_ros.cli.launch', 'run the whole node graph, one process per node'),
     'run': ('nmt_ros.cli.run_node', 'run one node'),
     'echo': ('nmt_ros.cli.echo', 'print messages of a topic (ros2 topic echo style)'),
-    'bag': ('nmt_ros.cli.bag', 'bag tools: info, play'),
+    'bag': ('nmt_ros.cli.bag', 'bag tools: info, play, reindex'),
 }
 
 
@@ -33,24 +33,22 @@ def ros_environment_defaults() -> None:
     os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='nmt', description='nmt_ros: neuromusculoskeletal tracking (Seth & Pandy 2007)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     for name, (module_name, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module_name)
-        if name in sys.argv[1:2]:  # only the chosen subcommand's module is imported
+        if name in argv[:1]:  # only the chosen subcommand's module is imported
             importlib.import_module(module_name).add_arguments(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     ros_environment_defaults()
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] and argv[0] in COMMANDS:
-        sys.argv = [sys.argv[0]] + list(argv)
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args, extra = parser.parse_known_args(argv)
     if not getattr(args, 'command', None):
         parser.print_help()

@@ -151,10 +151,11 @@ class JumperModel:
         self.activation_affine = F('adot_affine', [a], [drift_a, gain_a], ['a'],
                                    ['drift', 'gain'])
         # Whole musculoskeletal system: state [q; qd; a], input u.
-        lmt_q = paths.musculotendon_lengths(theta, m)
-        vmt_q = ca.jacobian(lmt_q, q) @ qd
+        lmt_q = self.musculotendon_lengths(theta)
+        r_q = self.moment_arms(theta)
+        vmt_q = -r_q @ theta_dot                     # l_mt_dot = -r theta_dot
         f_q = muscles.musculotendon_force(a, lmt_q, vmt_q, m)
-        tau_m = paths.moment_arms(theta, m).T @ f_q
+        tau_m = r_q.T @ f_q
         self.muscle_torques = F('tau_muscle', [q, qd, a], [tau_m, f_q], ['q', 'qd', 'a'],
                                 ['tau', 'f'])
         qdd_m = ca.solve(mass_matrix, rhs_free + ca.DM(self.T) @ tau_m)
