@@ -4,7 +4,7 @@ Run as subprocesses (OpenSim cannot share a process with casadi)::
 
     python -m nmt_ros.osim.crosscheck muscles --in IN.npz --out OUT.npz [--model M.osim]
     python -m nmt_ros.osim.crosscheck id --coordinates Q.sto --external-loads EL.xml \\
-        [--grf GRF.mot] --out-sto OUT.sto [--out-npz OUT.npz] [--model M.osim]
+        [--grf GRF.mot] --out-sto OUT.sto [--out-npz OUT.npz] [--model M.osim] [--lowpass HZ]
     python -m nmt_ros.osim.crosscheck write-inputs --in IN.npz --dir DIR
 
 Without ``--model`` the model is built from the data file (``nmt_ros.osim.export``).
@@ -26,10 +26,10 @@ the multipliers ``active_force_length``, ``force_velocity``, ``passive_force_len
 exported coordinates in rad; inDegrees=no) and the ExternalLoads file (its force applied to
 body ``foot``, point and force expressed in ground). Muscles are excluded, the passive joint
 ExpressionBasedCoordinateForces stay, and coordinate filtering is off
-(``lowpass_cutoff_frequency_for_coordinates = -1``). The generalized forces
-(``foot_tilt_moment``, ``foot_tx_force``, ``foot_ty_force``, ``ankle_angle_moment``,
-``knee_angle_moment``, ``hip_flexion_moment``) go to a .sto and, optionally, an npz with
-``time``, ``labels`` and ``values``.
+(``lowpass_cutoff_frequency_for_coordinates = -1``; ``--lowpass HZ`` sets it). The
+generalized forces (``foot_tilt_moment``, ``foot_tx_force``, ``foot_ty_force``,
+``ankle_angle_moment``, ``knee_angle_moment``, ``hip_flexion_moment``) go to a .sto and,
+optionally, an npz with ``time``, ``labels`` and ``values``.
 
 ``write-inputs``: test inputs written with OpenSim's own API (TimeSeriesTable and
 STOFileAdapter). IN.npz holds ``t`` [n], ``q`` [n, 6] (ours, converted as above) and
@@ -145,8 +145,8 @@ def read_sto(path: str | Path) -> tuple[np.ndarray, list[str], np.ndarray]:
 
 def inverse_dynamics(model: osim.Model, coordinates_file: str | Path,
                      external_loads_file: str | Path | None, out_sto: str | Path,
-                     grf_file: str | Path | None = None) -> tuple[np.ndarray, list[str],
-                                                                  np.ndarray]:
+                     grf_file: str | Path | None = None, lowpass_hz: float = -1.0,
+                     ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Run OpenSim's InverseDynamicsTool; returns (time, labels, generalized forces)."""
     out_sto = Path(out_sto).resolve()
     time, _, _ = read_sto(coordinates_file)
@@ -165,7 +165,7 @@ def inverse_dynamics(model: osim.Model, coordinates_file: str | Path,
         excluded = osim.ArrayStr()
         excluded.append('Muscles')
         tool.setExcludedForces(excluded)
-        tool.setLowpassCutoffFrequency(-1.0)
+        tool.setLowpassCutoffFrequency(float(lowpass_hz))
         tool.setStartTime(float(time[0]))
         tool.setEndTime(float(time[-1]))
         tool.setResultsDir(str(out_sto.parent))
@@ -264,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--out-sto', required=True, type=Path)
     p.add_argument('--out-npz', type=Path, default=None)
     p.add_argument('--model', type=Path, default=None)
+    p.add_argument('--lowpass', type=float, default=-1.0, metavar='HZ',
+                   help='lowpass_cutoff_frequency_for_coordinates (default -1: no filter)')
     p = sub.add_parser('write-inputs', help='write .sto/.mot/.xml test inputs from an npz')
     p.add_argument('--in', dest='inp', required=True, type=Path)
     p.add_argument('--dir', required=True, type=Path)
@@ -276,7 +278,8 @@ def main(argv: list[str] | None = None) -> int:
         np.savez(args.out, **out)
     elif args.verb == 'id':
         time, labels, values = inverse_dynamics(load_model(args.model), args.coordinates,
-                                                args.external_loads, args.out_sto, args.grf)
+                                                args.external_loads, args.out_sto, args.grf,
+                                                args.lowpass)
         if args.out_npz:
             np.savez(args.out_npz, time=time, labels=np.array(labels), values=values)
     else:
