@@ -1,0 +1,406 @@
+"""Linear-quadratic tracking (LQT) of Stage 2: Riccati (Eq. 12) and adjoint (Eq. 13), Eq. 14.
+
+System (METHOD.md Eq. 10): fdot = eta, tau = C(t) f, i.e. A = 0, B = I, with f[m] the
+musculotendon forces, C(t)[p, m] the moment arms and tau_ref(t)[p] the torque reference.
+Cost (Eq. 11): J = 1/2 e(tf)' P e(tf) + 1/2 int (e' Q e + eta' R eta) dt, e = tau_ref - C f.
+Integrated backward from tf:
+
+    -Wdot = -W R^-1 W + C' Q C,                W(tf) = C' P C               (12)
+    -gdot = -(R^-1 W)' g + C' Q tau_ref,       g(tf) = C' P tau_ref(tf)     (13)
+    eta   = -R^-1 W f + R^-1 g                                              (14)
+
+Integrator (why): the closed-loop rates sqrt(eig(R^-1 C'QC)) reach ~1300 1/s for the paper's
+weights, so an explicit scheme needs steps < ~1 ms and substeps on a 120 Hz grid. Instead each
+grid interval is solved EXACTLY for frozen coefficients: M = C'QC is held at the interval mean
+of its end values and b = C'Q tau_ref varies linearly (second order in h overall, exact for
+constant C). With Wt = R^-1/2 W R^-1/2, gt = R^-1/2 g, Mt = R^-1/2 M R^-1/2 = V diag(mu^2) V'
+and s = backward time, the Hamiltonian flow [[0, I], [mu^2, 0]] is diagonal in V, and the
+linear-fractional (Davison-Maki / Moebius) map of one step, Z = V' Wt V, x = mu h, is
+
+    Z1 = diag(mu tanh x) + E K E,    K = (I + Z0 D)^-1 Z0,   E = sech x,  D = tanh(x)/mu
+    gh1 = E (I + Z0 D)^-1 gh0 + [D - E K N] bh_a + [Pb - E K Pd] beta
+
+(gh = V' gt, bh = V' R^-1/2 b, N, Pb, Pd closed-form functions of x, below). Every factor is
+bounded (E, tanh <= 1, D <= h): no exponential growth, no overflow for any step, Z1 is
+symmetric and positive semi-definite whenever Z0 is, and the co-contraction directions
+(mu = 0, unobservable) are handled by the series of the same functions. The same exact step
+for a general (A, B) uses the matrix exponential of the augmented Hamiltonian
+(``solve_lqt(..., A=, B=)``); the two paths agree for A = 0, B = I (tested).
+
+The forward closed loop fdot = R^-1 (g - W f) is likewise solved exactly per interval
+(``closed_loop_coefficients``; exponential integrator, W frozen at the interval mean, g linear),
+so a coarse grid (e.g. 120 Hz) neither destabilises nor lags the stiff feedback.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+#: Below this x = mu h the step functions are evaluated by their Taylor series.
+_SERIES_X = 0.02
+
+
+# ---------------------------------------------------------------------------- step functions
+def _sech(x: np.ndarray) -> np.ndarray:
+    e = np.exp(-x)
+    return 2.0 * e / (1.0 + e * e)
+
+
+def _step_functions(mu: np.ndarray, h: float) -> dict[str, np.ndarray]:
+    """Exact-step coefficients [..., m] for modes with rate mu >= 0 over a step h.
+
+    lam_t = mu tanh x, sech = sech x, d = tanh(x)/mu, n = (1 - sech x)/mu^2,
+    pb = (x tanh x - 1 + sech x)/mu^2, pd = (tanh(x)/mu - h sech x)/mu^2, x = mu h.
+    """
+    x = mu * h
+    small = x < _SERIES_X
+    xs = np.where(small, 1.0, x)             # safe denominators
+    x2 = x * x
+    th = np.tanh(x)
+    se = _sech(x)
+    d = np.where(small, h * (1 - x2 / 3 + 2 * x2 * x2 / 15), h * th / xs)
+    n = np.where(small, h * h * (0.5 - 5 * x2 / 24 + 61 * x2 * x2 / 720),
+                 h * h * (1 - se) / xs ** 2)
+    pb = np.where(small, h * h * (0.5 - x2 / 8 + 7 * x2 * x2 / 144),
+                  h * h * (x * th - 1 + se) / xs ** 2)
+    pd = np.where(small, h ** 3 * (1 / 6 - 3 * x2 / 40 + 31 * x2 * x2 / 1008),
+                  h ** 3 * (th / xs - se) / xs ** 2)
+    return {'lam_t': mu * th, 'sech': se, 'd': d, 'n': n, 'pb': pb, 'pd': pd}
+
+
+def _decay_functions(omega: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
+    """exp(-x), h phi1(x), h phi2(x) for ydot = -omega y + gamma(t), gamma linear, x = omega h.
+
+    y(h) = exp(-x) y0 + h phi1 gamma0 + h phi2 (gamma1 - gamma0),
+    phi1 = (1 - exp(-x))/x, phi2 = (x - 1 + exp(-x))/x^2.
+    """
+    x = np.maximum(omega, 0.0) * h
+    small = x < _SERIES_X
+    xs = np.where(small, 1.0, x)
+    ex = np.exp(-x)
+    phi1 = np.where(small, 1 - x / 2 + x * x / 6 - x ** 3 / 24, (1 - ex) / xs)
+    phi2 = np.where(small, 0.5 - x / 6 + x * x / 24 - x ** 3 / 120, (x - 1 + ex) / xs ** 2)
+    return ex, h * phi1, h * phi2
+
+
+def _sym(a: np.ndarray) -> np.ndarray:
+    return 0.5 * (a + np.swapaxes(a, -1, -2))
+
+
+def _inv_sqrt_spd(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R^-1/2 and R^1/2 of a symmetric positive-definite R (or a diagonal given as [m])."""
+    r = np.asarray(r, dtype=float)
+    if r.ndim == 1:
+        if np.any(r <= 0):
+            raise ValueError('R must be positive definite')
+        return np.diag(1 / np.sqrt(r)), np.diag(np.sqrt(r))
+    w, u = np.linalg.eigh(_sym(r))
+    if np.any(w <= 0):
+        raise ValueError('R must be positive definite')
+    return (u / np.sqrt(w)) @ u.T, (u * np.sqrt(w)) @ u.T
+
+
+# ---------------------------------------------------------------------------- the grid recipe
+@dataclass(frozen=True)
+class LqtGrid:
+    """Per-sample and per-interval data of the A = 0, B = I problem on a uniform grid.
+
+    All matrices in the scaled coordinates (Wt = R^-1/2 W R^-1/2, gt = R^-1/2 g,
+    ft = R^1/2 f). Intervals i = [t_i, t_i+1], i = 0..n-2. Independent of the window: the
+    backward sweeps of every window share it.
+    """
+
+    t: np.ndarray              # [n] s
+    h: float                   # s
+    r_inv_sqrt: np.ndarray     # [m, m]  R^-1/2
+    r_sqrt: np.ndarray         # [m, m]  R^1/2
+    m_tilde: np.ndarray        # [n, m, m]  R^-1/2 C'QC R^-1/2 at the samples
+    b_tilde: np.ndarray        # [n, m]     R^-1/2 C'Q tau_ref at the samples
+    wt_terminal: np.ndarray    # [n, m, m]  R^-1/2 C'PC R^-1/2 (terminal value if tf = t_i)
+    gt_terminal: np.ndarray    # [n, m]     R^-1/2 C'P tau_ref
+    v: np.ndarray              # [n-1, m, m]  eigenvectors of the interval-mean m_tilde
+    coef: dict[str, np.ndarray]  # exact-step functions [n-1, m] (see _step_functions)
+
+    @property
+    def n(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.m_tilde.shape[-1]
+
+    def unscale_w(self, wt: np.ndarray) -> np.ndarray:
+        """W = R^1/2 Wt R^1/2 (any leading axes)."""
+        return self.r_sqrt @ wt @ self.r_sqrt
+
+    def unscale_g(self, gt: np.ndarray) -> np.ndarray:
+        """g = R^1/2 gt (any leading axes)."""
+        return gt @ self.r_sqrt.T
+
+
+def _uniform_step(t: np.ndarray) -> float:
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError('t must be a 1-D grid of at least 2 samples')
+    dt = np.diff(t)
+    h = float(dt.mean())
+    if h <= 0 or np.max(np.abs(dt - h)) > 1e-6 * h + 1e-12:
+        raise ValueError('t must be uniform and increasing')
+    return h
+
+
+def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
+                 R: np.ndarray, P: np.ndarray | None = None) -> LqtGrid:
+    """Precompute the scaled problem and the exact-step coefficients of every interval.
+
+    t [n] uniform (s); C [n, p, m]; tau_ref [n, p]; Q [p, p]; R [m, m] SPD (or its diagonal
+    [m]); P [p, p] terminal weight (default 0). Vectorised over samples (batched eigh).
+    """
+    h = _uniform_step(t)
+    C = np.asarray(C, dtype=float)
+    tau_ref = np.asarray(tau_ref, dtype=float)
+    n, p, m = C.shape
+    if tau_ref.shape != (n, p) or np.shape(t) != (n,):
+        raise ValueError(f'shapes: t {np.shape(t)}, C {C.shape}, tau_ref {tau_ref.shape}')
+    Q = np.asarray(Q, dtype=float)
+    P = np.zeros((p, p)) if P is None else np.asarray(P, dtype=float)
+    r_is, r_s = _inv_sqrt_spd(R)
+    ct = C @ r_is                                          # [n, p, m]  C R^-1/2
+    ctt = np.swapaxes(ct, 1, 2)
+    m_tilde = _sym(ctt @ Q @ ct)
+    b_tilde = np.einsum('nip,np->ni', ctt @ Q, tau_ref)
+    wt_terminal = _sym(ctt @ P @ ct)
+    gt_terminal = np.einsum('nip,np->ni', ctt @ P, tau_ref)
+    mu2, v = np.linalg.eigh(0.5 * (m_tilde[1:] + m_tilde[:-1]))
+    mu = np.sqrt(np.maximum(mu2, 0.0))
+    return LqtGrid(t=np.asarray(t, dtype=float), h=h, r_inv_sqrt=r_is, r_sqrt=r_s,
+                   m_tilde=m_tilde, b_tilde=b_tilde, wt_terminal=wt_terminal,
+                   gt_terminal=gt_terminal, v=v, coef=_step_functions(mu, h))
+
+
+def concat_grids(first: LqtGrid, second: LqtGrid) -> LqtGrid:
+    """Join two grids; ``second`` starts at the last sample of ``first`` (shared sample)."""
+    if abs(second.t[0] - first.t[-1]) > 1e-9 * max(1.0, abs(first.t[-1])) or \
+            abs(second.h - first.h) > 1e-6 * first.h:
+        raise ValueError('grids must share their joining sample and step')
+    per_sample = ('t', 'm_tilde', 'b_tilde', 'wt_terminal', 'gt_terminal')
+    joined = {k: np.concatenate([getattr(first, k), getattr(second, k)[1:]])
+              for k in per_sample}
+    return LqtGrid(h=first.h, r_inv_sqrt=first.r_inv_sqrt, r_sqrt=first.r_sqrt,
+                   v=np.concatenate([first.v, second.v]),
+                   coef={k: np.concatenate([first.coef[k], second.coef[k]]) for k in first.coef},
+                   **joined)
+
+
+def tail_grid(grid: LqtGrid, k: int) -> LqtGrid:
+    """The grid without its first k samples (and intervals)."""
+    per_sample = ('t', 'm_tilde', 'b_tilde', 'wt_terminal', 'gt_terminal')
+    return LqtGrid(h=grid.h, r_inv_sqrt=grid.r_inv_sqrt, r_sqrt=grid.r_sqrt, v=grid.v[k:],
+                   coef={name: c[k:] for name, c in grid.coef.items()},
+                   **{name: getattr(grid, name)[k:] for name in per_sample})
+
+
+def backward_sweep(grid: LqtGrid, starts: np.ndarray, length: int, keep: int,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Integrate Eqs. 12-13 backward on windows [starts_k, starts_k + length] (batched).
+
+    Windows that would pass the last sample end there (terminal condition at t_n-1).
+    Returns (Wt [K, keep, m, m], gt [K, keep, m]) at the first ``keep`` samples of each
+    window (scaled coordinates). One loop over the ``length`` intervals; each step is a few
+    batched [K, m, m] operations.
+    """
+    starts = np.atleast_1d(np.asarray(starts, dtype=int))
+    n, m = grid.n, grid.m
+    if length < 1 or keep < 1 or keep > length + 1:
+        raise ValueError('need 1 <= keep <= length + 1')
+    ends = np.minimum(starts + length, n - 1)
+    if np.any(starts < 0) or np.any(starts >= ends):
+        raise ValueError('window starts must lie in [0, n - 2]')
+    K = starts.size
+    wt = grid.wt_terminal[ends].copy()
+    gt = grid.gt_terminal[ends].copy()
+    w_keep = np.empty((K, keep, m, m))
+    g_keep = np.empty((K, keep, m))
+    eye = np.eye(m)
+    c = grid.coef
+    if keep == length + 1:
+        w_keep[:, length] = wt
+        g_keep[:, length] = gt
+    for j in range(length - 1, -1, -1):
+        i = starts + j                       # interval [t_i, t_i+1]
+        active = i < ends
+        if np.any(active):
+            ia = i[active]
+            v = grid.v[ia]
+            vt = np.swapaxes(v, 1, 2)
+            lam_t, se, d = c['lam_t'][ia], c['sech'][ia], c['d'][ia]
+            z0 = vt @ wt[active] @ v
+            gh0 = np.einsum('kji,kj->ki', v, gt[active])
+            ba = np.einsum('kji,kj->ki', v, grid.b_tilde[ia + 1])
+            beta = np.einsum('kji,kj->ki', v, grid.b_tilde[ia] - grid.b_tilde[ia + 1]) / grid.h
+            lhs = eye + z0 * d[:, None, :]
+            sol = np.linalg.solve(lhs, np.concatenate([z0, gh0[:, :, None]], axis=2))
+            kk = _sym(sol[:, :, :m])
+            ek = se[:, :, None] * kk
+            z1 = ek * se[:, None, :]
+            z1[:, np.arange(m), np.arange(m)] += lam_t
+            forcing = (ek @ (c['n'][ia] * ba + c['pd'][ia] * beta)[:, :, None])[:, :, 0]
+            gh1 = se * sol[:, :, m] + d * ba + c['pb'][ia] * beta - forcing
+            wt[active] = _sym(v @ z1 @ vt)
+            gt[active] = np.einsum('kij,kj->ki', v, gh1)
+        if j < keep:
+            w_keep[:, j] = wt
+            g_keep[:, j] = gt
+    return w_keep, g_keep
+
+
+# ---------------------------------------------------------------------------- full solution
+@dataclass(frozen=True)
+class LqtSolution:
+    """W [n, m, m], g [n, m] of Eqs. 12-13 on the grid t [n] (physical units)."""
+
+    t: np.ndarray
+    W: np.ndarray
+    g: np.ndarray
+    R: np.ndarray
+
+    def control(self, f: np.ndarray) -> np.ndarray:
+        """Eq. 14 at every sample: eta [n, m] for forces f [n, m]."""
+        return lqt_control(self.W, self.g, f, self.R)
+
+
+def lqt_control(W: np.ndarray, g: np.ndarray, f: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Eq. 14: eta = -R^-1 W f + R^-1 g (any leading axes; R [m, m] or its diagonal [m])."""
+    rhs = g - np.einsum('...ij,...j->...i', W, f)
+    R = np.asarray(R, dtype=float)
+    if R.ndim == 1:
+        return rhs / R
+    return np.linalg.solve(R, rhs[..., None])[..., 0]
+
+
+def solve_lqt(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray, R: np.ndarray,
+              P: np.ndarray | None = None, A: np.ndarray | None = None,
+              B: np.ndarray | None = None) -> LqtSolution:
+    """Eqs. 12-13 backward over the whole grid (the paper's full horizon).
+
+    t [n] uniform; C [n, p, m] (or [p, m], constant); tau_ref [n, p]; Q [p, p]; R [m, m]
+    (or diagonal [m]); P [p, p] (default 0). Optional constant A [m, m], B [m, k] give the
+    general LQT (R then [k, k]): -Wdot = A'W + WA - W B R^-1 B' W + C'QC,
+    -gdot = (A - B R^-1 B' W)' g + C'Q tau_ref (exact step by the matrix exponential).
+    """
+    t = np.asarray(t, dtype=float)
+    n = t.size
+    C = np.asarray(C, dtype=float)
+    if C.ndim == 2:
+        C = np.broadcast_to(C, (n, *C.shape))
+    R_mat = np.diag(R) if np.ndim(R) == 1 else np.asarray(R, dtype=float)
+    if A is None and B is None:
+        grid = prepare_grid(t, C, tau_ref, Q, R, P)
+        wt, gt = backward_sweep(grid, np.array([0]), n - 1, n)
+        return LqtSolution(t=t, W=_sym(grid.unscale_w(wt[0])), g=grid.unscale_g(gt[0]),
+                           R=R_mat)
+    m = C.shape[2]
+    A = np.zeros((m, m)) if A is None else np.asarray(A, dtype=float)
+    B = np.eye(m) if B is None else np.asarray(B, dtype=float)
+    W, g = _general_sweep(t, C, np.asarray(tau_ref, dtype=float), np.asarray(Q, dtype=float),
+                          R_mat, P, A, B)
+    return LqtSolution(t=t, W=W, g=g, R=R_mat)
+
+
+def _general_sweep(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
+                   R: np.ndarray, P: np.ndarray | None, A: np.ndarray, B: np.ndarray,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Exact-step sweep for general constant (A, B): Moebius map of expm(augmented Hamiltonian).
+
+    Backward time s: d[x; lam]/ds = [[-A, S], [M, A']] [x; lam] + [0; -b(s)], S = B R^-1 B',
+    lam = W x - g. With Phi, (pf, pl) the flow and the forced response of one step,
+    W1 = (Phi21 + Phi22 W0)(Phi11 + Phi12 W0)^-1, g1 = (Phi22 - W1 Phi12) g0 + W1 pf - pl.
+    M frozen at the interval mean, b linear in s (augmented states 1 and s).
+    """
+    h = _uniform_step(t)
+    n, p, m = C.shape
+    P = np.zeros((p, p)) if P is None else np.asarray(P, dtype=float)
+    S = B @ np.linalg.solve(R, B.T)
+    Ct = np.swapaxes(C, 1, 2)
+    M = _sym(Ct @ Q @ C)
+    b = np.einsum('nip,np->ni', Ct @ Q, tau_ref)
+    W = np.empty((n, m, m))
+    g = np.empty((n, m))
+    W[-1] = _sym(C[-1].T @ P @ C[-1])
+    g[-1] = C[-1].T @ P @ tau_ref[-1]
+    big = np.zeros((2 * m + 2, 2 * m + 2))
+    big[:m, :m] = -A
+    big[:m, m:2 * m] = S
+    big[m:2 * m, m:2 * m] = A.T
+    big[2 * m + 1, 2 * m] = 1.0
+    for i in range(n - 2, -1, -1):
+        big[m:2 * m, :m] = 0.5 * (M[i] + M[i + 1])
+        big[m:2 * m, 2 * m] = -b[i + 1]
+        big[m:2 * m, 2 * m + 1] = -(b[i] - b[i + 1]) / h
+        phi = expm(big * h)
+        p11, p12 = phi[:m, :m], phi[:m, m:2 * m]
+        p21, p22 = phi[m:2 * m, :m], phi[m:2 * m, m:2 * m]
+        pf, pl = phi[:m, 2 * m], phi[m:2 * m, 2 * m]
+        x = p11 + p12 @ W[i + 1]
+        y = p21 + p22 @ W[i + 1]
+        w1 = _sym(np.linalg.solve(x.T, y.T).T)
+        W[i] = w1
+        g[i] = (p22 - w1 @ p12) @ g[i + 1] + w1 @ pf - pl
+    return W, g
+
+
+# ---------------------------------------------------------------------------- forward loop
+def closed_loop_coefficients(wt: np.ndarray, h: float) -> dict[str, np.ndarray]:
+    """Exact-step data of ft_dot = -Wt ft + gt(t) on intervals, Wt frozen at the interval mean.
+
+    wt [..., k+1, m, m] at the samples of k intervals. Returns u [..., k, m, m] (eigenvectors
+    of the interval mean), decay = exp(-omega h), hphi1, hphi2 [..., k, m] for ``advance``.
+    """
+    omega, u = np.linalg.eigh(_sym(0.5 * (wt[..., 1:, :, :] + wt[..., :-1, :, :])))
+    decay, hphi1, hphi2 = _decay_functions(omega, h)
+    return {'u': u, 'decay': decay, 'hphi1': hphi1, 'hphi2': hphi2}
+
+
+def closed_loop_advance(ft0: np.ndarray, gt0: np.ndarray, gt1: np.ndarray, u: np.ndarray,
+                        decay: np.ndarray, hphi1: np.ndarray, hphi2: np.ndarray) -> np.ndarray:
+    """One interval of ft_dot = -Wt ft + gt (Eq. 14 closed loop, scaled): ft at its end."""
+    y0 = ft0 @ u
+    c0 = gt0 @ u
+    c1 = gt1 @ u
+    return u @ (decay * y0 + hphi1 * c0 + hphi2 * (c1 - c0))
+
+
+def simulate_linear(sol: LqtSolution, f0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed loop fdot = eta (Eq. 14) of the linear system (10) from f0: (f [n, m], eta [n, m]).
+
+    Exact per interval (W frozen at the interval mean, g linear); no muscle model.
+    """
+    h = _uniform_step(sol.t)
+    r_is, r_s = _inv_sqrt_spd(sol.R)
+    wt = r_is @ sol.W @ r_is
+    gt = sol.g @ r_is.T
+    cl = closed_loop_coefficients(wt, h)
+    n = sol.t.size
+    ft = np.empty((n, wt.shape[-1]))
+    ft[0] = r_s @ np.asarray(f0, dtype=float)
+    for i in range(n - 1):
+        ft[i + 1] = closed_loop_advance(ft[i], gt[i], gt[i + 1], cl['u'][i], cl['decay'][i],
+                                        cl['hphi1'][i], cl['hphi2'][i])
+    f = ft @ r_is.T
+    return f, sol.control(f)
+
+
+def tracking_cost(t: np.ndarray, f: np.ndarray, eta: np.ndarray, C: np.ndarray,
+                  tau_ref: np.ndarray, Q: np.ndarray, R: np.ndarray,
+                  P: np.ndarray | None = None) -> float:
+    """Eq. 11 by the trapezoidal rule: f, eta [n, m]; C [n, p, m]; tau_ref [n, p]."""
+    e = tau_ref - np.einsum('npm,nm->np', C, f)
+    R = np.diag(R) if np.ndim(R) == 1 else np.asarray(R, dtype=float)
+    run = np.einsum('np,pq,nq->n', e, Q, e) + np.einsum('nm,mk,nk->n', eta, R, eta)
+    dt = np.diff(t)
+    total = 0.5 * float(np.sum(0.5 * (run[1:] + run[:-1]) * dt))
+    if P is not None:
+        total += 0.5 * float(e[-1] @ P @ e[-1])
+    return total

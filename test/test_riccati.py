@@ -1,0 +1,167 @@
+"""Riccati (Eq. 12), adjoint (Eq. 13) and control law (Eq. 14) against independent truths."""
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+from scipy.linalg import solve_continuous_are, sqrtm
+
+from nmt_ros.tracking import riccati as rc
+
+
+def _jumper_problem() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """C (3x9) of the model at the squat and the paper's Q, R (Appendix B)."""
+    from nmt_ros.model.jumper import default_model
+
+    model = default_model()
+    C, = model.call(model.moment_arm_matrix, np.radians([25.0, -70.0, 80.0]))
+    r = np.array([1, 1, 0.1, 1, 0.3, 1, 0.75, 1, 1])   # gmax ilpso hams bfsh rf vas gas sol ta
+    R = 1000.0 * np.diag(r / model.p.muscles.f0 ** 2)
+    return np.asarray(C), 1500.0 * np.eye(3), R
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def test_step_functions_series_and_closed_forms_agree():
+    mu = np.array([0.0199, 0.0201, 0.5, 3.0])
+    c = rc._step_functions(mu, 1.0)
+    x = mu
+    np.testing.assert_allclose(c['d'], np.tanh(x) / x, rtol=1e-9)
+    np.testing.assert_allclose(c['n'], (1 - 1 / np.cosh(x)) / x ** 2, rtol=1e-8)
+    np.testing.assert_allclose(c['pb'], (x * np.tanh(x) - 1 + 1 / np.cosh(x)) / x ** 2,
+                               rtol=1e-8)
+    np.testing.assert_allclose(c['pd'], (np.tanh(x) / x - 1 / np.cosh(x)) / x ** 2, rtol=1e-7)
+
+
+def test_constant_c_reaches_closed_form_steady_state():
+    C, Q, R = _jumper_problem()
+    M = C.T @ Q @ C
+    rates = np.sqrt(np.abs(np.linalg.eigvals(np.linalg.solve(R, M))))
+    assert rates.max() > 300          # the stiffness the integrator must cope with
+    t = np.arange(0, 0.2 + 1e-12, 1 / 120)   # a coarse 120 Hz grid: exact steps stay stable
+    tau = np.zeros((t.size, 3))
+    sol = rc.solve_lqt(t, C, tau, Q, R)
+    r_h = np.sqrt(np.diag(R))
+    S = r_h[:, None] * np.real(sqrtm(M / np.outer(r_h, r_h))) * r_h[None, :]
+    assert _rel(sol.W[0], S) < 1e-6
+    # symmetric, positive semi-definite everywhere; W(tf) = C'PC = 0
+    assert np.max(np.abs(sol.W - np.swapaxes(sol.W, 1, 2))) == 0.0
+    assert np.linalg.eigvalsh(sol.W).min() > -1e-9 * np.abs(S).max()
+    assert np.all(sol.W[-1] == 0)
+
+
+def test_general_ab_path_matches_care_and_control_lqr():
+    rng = np.random.default_rng(3)
+    m, k, p = 4, 2, 2
+    A = rng.normal(size=(m, m))               # generally unstable
+    B = rng.normal(size=(m, k))
+    C = rng.normal(size=(p, m))               # observable (random)
+    Q = np.diag([2.0, 0.5])
+    R = np.diag([0.3, 1.2])
+    t = np.linspace(0, 15, 1501)
+    sol = rc.solve_lqt(t, C, np.zeros((t.size, p)), Q, R, A=A, B=B)
+    S_care = solve_continuous_are(A, B, C.T @ Q @ C, R)
+    _, S_ctrl, _ = control.lqr(A, B, C.T @ Q @ C, R)
+    assert _rel(sol.W[0], S_care) < 1e-6
+    assert _rel(sol.W[0], np.asarray(S_ctrl)) < 1e-6
+
+
+def test_general_path_equals_fast_path_for_a0_b_identity():
+    """The two implementations of the same exact step agree on a time-varying problem."""
+    rng = np.random.default_rng(5)
+    C0, Q, R = _jumper_problem()
+    t = np.linspace(0, 0.05, 51)
+    C = C0[None] * (1 + 0.3 * np.sin(40 * t))[:, None, None] + 0.004 * rng.normal(size=(1, 3, 9))
+    tau = np.stack([100 * np.sin(30 * t), 50 * np.cos(20 * t), 80 * t], axis=1)
+    P = 0.01 * np.eye(3)
+    fast = rc.solve_lqt(t, C, tau, Q, R, P=P)
+    general = rc.solve_lqt(t, C, tau, Q, R, P=P, A=np.zeros((9, 9)), B=np.eye(9))
+    assert _rel(fast.W, general.W) < 1e-8
+    assert _rel(fast.g, general.g) < 1e-8
+
+
+def test_scalar_constant_coefficients_tanh_solution():
+    q, r, c, tf = 3.0, 0.2, 1.7, 1.0
+    t = np.linspace(0, tf, 11)                       # coarse: the step is exact
+    sol = rc.solve_lqt(t, np.full((t.size, 1, 1), c), np.zeros((t.size, 1)), [[q]], [r])
+    exact = np.sqrt(q * r) * c * np.tanh(c * np.sqrt(q / r) * (tf - t))
+    np.testing.assert_allclose(sol.W[:, 0, 0], exact, rtol=1e-12, atol=1e-14)
+
+
+def _manufactured(t: np.ndarray, tf: float) -> dict[str, np.ndarray | float]:
+    """Time-varying scalar problem with a known solution w(t), g(t).
+
+    Choose w = 2 (1 + 0.5 sin 3t), r = 0.1, q = 1; Eq. 12 then fixes c(t)^2 = (w^2/r - wdot)/q
+    and P = w(tf)/c(tf)^2. Choose g = w (1 + 0.3 (t - tf)^2) (gdot/g = wdot/w at tf, so g(tf)
+    = c P tau(tf) holds); Eq. 13 fixes tau = ((w/r) g - gdot)/(c q).
+    """
+    q, r = 1.0, 0.1
+    w = 2 * (1 + 0.5 * np.sin(3 * t))
+    wd = 3 * np.cos(3 * t)
+    c = np.sqrt((w ** 2 / r - wd) / q)
+    shape = 1 + 0.3 * (t - tf) ** 2
+    g = w * shape
+    gd = wd * shape + w * 0.6 * (t - tf)
+    tau = ((w / r) * g - gd) / (c * q)
+    return {'q': q, 'r': r, 'w': w, 'c': c, 'g': g, 'tau': tau, 'P': w[-1] / c[-1] ** 2}
+
+
+@pytest.mark.parametrize('n', [4001, 8001])
+def test_scalar_time_varying_manufactured_solution(n):
+    tf = 2.0
+    t = np.linspace(0, tf, n)
+    ms = _manufactured(t, tf)
+    sol = rc.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]], [ms['r']],
+                       P=[[ms['P']]])
+    assert _rel(sol.W[:, 0, 0], ms['w']) < 1e-6
+    assert _rel(sol.g[:, 0], ms['g']) < 1e-6
+
+
+def test_scalar_time_varying_is_second_order():
+    tf = 2.0
+    errs = []
+    for n in (101, 201, 401):
+        t = np.linspace(0, tf, n)
+        ms = _manufactured(t, tf)
+        sol = rc.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]],
+                           [ms['r']], P=[[ms['P']]])
+        errs.append(np.abs(sol.g[:, 0] - ms['g']).max())
+    order = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    assert np.all(order > 1.8), order
+
+
+def test_adjoint_constant_reference_reaches_r_weighted_optimum():
+    """Infinite-horizon optimum of fdot = eta, e = tau - C f, constant tau and C.
+
+    The forces settle where C f = tau with the R-weighted minimum change from f0:
+    f_inf = f0 + R^-1 C' (C R^-1 C')^-1 (tau - C f0); there eta = 0, so g = W f_inf.
+    """
+    C, Q, R = _jumper_problem()
+    tau = np.array([-60.0, 120.0, -150.0])
+    f0 = np.full(9, 300.0)
+    t = np.arange(0, 0.3 + 1e-12, 1e-3)
+    sol = rc.solve_lqt(t, C, np.tile(tau, (t.size, 1)), Q, R)
+    f, eta = rc.simulate_linear(sol, f0)
+    ri = np.linalg.inv(R)
+    f_inf = f0 + ri @ C.T @ np.linalg.solve(C @ ri @ C.T, tau - C @ f0)
+    mid = t.size // 2                     # far from both ends (rates > 400 1/s)
+    assert _rel(f[mid], f_inf) < 1e-6
+    assert _rel(sol.g[mid], sol.W[mid] @ f_inf) < 1e-6
+    assert np.abs(eta[mid]).max() < 1e-6 * np.abs(f_inf).max()
+    # the continuous-time cost of the closed loop is the optimum: no perturbation lowers it
+    J = rc.tracking_cost(t, f, eta, np.broadcast_to(C, (t.size, 3, 9)),
+                         np.tile(tau, (t.size, 1)), Q, R)
+    assert np.isfinite(J) and J > 0
+
+
+def test_lqt_control_matches_explicit_formula():
+    rng = np.random.default_rng(0)
+    W = rng.normal(size=(5, 4, 4))
+    g = rng.normal(size=(5, 4))
+    f = rng.normal(size=(5, 4))
+    r = np.array([0.5, 2.0, 1.0, 3.0])
+    expected = np.stack([np.linalg.solve(np.diag(r), g[i] - W[i] @ f[i]) for i in range(5)])
+    np.testing.assert_allclose(rc.lqt_control(W, g, f, r), expected, rtol=1e-12)
+    np.testing.assert_allclose(rc.lqt_control(W, g, f, np.diag(r)), expected, rtol=1e-12)
