@@ -157,27 +157,32 @@ def test_windowed_matches_full_horizon(tracker, synth, full):
     assert eig.min() >= -1e-9 * eig.max()
 
 
-def test_streaming_equals_batch_windowed(tracker, synth):
+@pytest.mark.parametrize('dt', [1e-3, 1 / 120])
+def test_streaming_equals_batch_windowed(tracker, dt):
+    """``push`` fed uneven chunks of samples == the batch windowed mode (also with substeps)."""
+    synth = nt.synthetic_reference(dt=dt)
     kw = dict(window_length=0.03, window_stride=0.002)
     batch = tracker.track(*_inputs(synth), synth.a_true[0], mode='windowed', **kw)
-    stream = tracker.start_stream(synth.a_true[0], dt=1e-3)
+    stream = tracker.start_stream(synth.a_true[0], dt=dt)
     steps = []
     n = synth.t.size
-    for lo in range(0, n, 7):                       # samples arrive in uneven chunks
+    for lo in range(0, n, 7):
         hi = min(n, lo + 7)
         stream, new = tracker.push(stream, *(x[lo:hi] for x in _inputs(synth)),
                                    final=hi == n, **kw)
         steps += new
-        if not new:
-            continue
         # nothing is output before its window's reference has arrived (window k covers
         # [t_k, t_k + stride) and needs samples up to t_k + H)
-        assert new[-1].t[-1] <= synth.t[hi - 1] - 0.03 + 0.002 - 1e-3 + 1e-9 or hi == n
-    assert stream.reference.n <= 35                 # only a window's worth is kept
+        if new and hi < n:
+            h = dt / batch.substeps
+            assert new[-1].t[-1] <= (synth.t[hi - 1] - batch.window_length
+                                     + batch.window_stride - h + 1e-9)
     f = np.vstack([np.concatenate([s.f for s in steps]), stream.muscle.f])
     u = np.concatenate([s.u for s in steps])
-    np.testing.assert_allclose(f, batch.f, rtol=0, atol=1e-9 * tracker.f0.max())
-    np.testing.assert_allclose(u, batch.u[:-1], atol=1e-12)
+    sub = batch.substeps
+    assert stream.reference.n <= 0.035 / (dt / sub) + 2          # a window's worth is kept
+    np.testing.assert_allclose(f[::sub], batch.f, rtol=0, atol=1e-9 * tracker.f0.max())
+    np.testing.assert_allclose(u[::sub], batch.u[:-1], atol=1e-12)
 
 
 # ---------------------------------------------------------------------------- saturation

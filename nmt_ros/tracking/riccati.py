@@ -121,7 +121,7 @@ class LqtGrid:
     wt_terminal: np.ndarray    # [n, m, m]  R^-1/2 C'PC R^-1/2 (terminal value if tf = t_i)
     gt_terminal: np.ndarray    # [n, m]     R^-1/2 C'P tau_ref
     v: np.ndarray              # [n-1, m, m]  eigenvectors of the interval-mean m_tilde
-    coef: dict[str, np.ndarray]  # exact-step functions [n-1, m] (see _step_functions)
+    coef: dict[str, np.ndarray]  # [n-1, m]: _step_functions + projected forcing
 
     @property
     def n(self) -> int:
@@ -175,9 +175,17 @@ def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
     gt_terminal = np.einsum('nip,np->ni', ctt @ P, tau_ref)
     mu2, v = np.linalg.eigh(0.5 * (m_tilde[1:] + m_tilde[:-1]))
     mu = np.sqrt(np.maximum(mu2, 0.0))
+    coef = _step_functions(mu, h)
+    # the adjoint's forcing over each interval, b linear from b(t_i+1) (s = 0) to b(t_i),
+    # projected on the interval's eigenvectors: it does not depend on the recursion
+    vt = np.swapaxes(v, 1, 2)
+    ba = (vt @ b_tilde[1:, :, None])[..., 0]
+    beta = (vt @ (b_tilde[:-1] - b_tilde[1:])[..., None])[..., 0] / h
+    coef['lin'] = coef['d'] * ba + coef['pb'] * beta      # through diag(mu tanh x)
+    coef['quad'] = coef['n'] * ba + coef['pd'] * beta     # through E K
     return LqtGrid(t=np.asarray(t, dtype=float), h=h, r_inv_sqrt=r_is, r_sqrt=r_s,
                    m_tilde=m_tilde, b_tilde=b_tilde, wt_terminal=wt_terminal,
-                   gt_terminal=gt_terminal, v=v, coef=_step_functions(mu, h))
+                   gt_terminal=gt_terminal, v=v, coef=coef)
 
 
 def concat_grids(first: LqtGrid, second: LqtGrid) -> LqtGrid:
@@ -206,10 +214,12 @@ def backward_sweep(grid: LqtGrid, starts: np.ndarray, length: int, keep: int,
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Integrate Eqs. 12-13 backward on windows [starts_k, starts_k + length] (batched).
 
-    Windows that would pass the last sample end there (terminal condition at t_n-1).
-    Returns (Wt [K, keep, m, m], gt [K, keep, m]) at the first ``keep`` samples of each
-    window (scaled coordinates). One loop over the ``length`` intervals; each step is a few
-    batched [K, m, m] operations.
+    Windows that would pass the last sample end there (terminal condition at t_n-1; the
+    missing steps are identity steps). Returns (Wt [K, keep, m, m], gt [K, keep, m]) at the
+    first ``keep`` samples of each window (scaled coordinates). What does not depend on the
+    recursion (step coefficients, projected forcing) is per interval in ``grid`` and gathered
+    up front; the loop over the ``length`` steps is a few batched [K, m, m] products and one
+    batched solve.
     """
     starts = np.atleast_1d(np.asarray(starts, dtype=int))
     n, m = grid.n, grid.m
@@ -219,37 +229,35 @@ def backward_sweep(grid: LqtGrid, starts: np.ndarray, length: int, keep: int,
     if np.any(starts < 0) or np.any(starts >= ends):
         raise ValueError('window starts must lie in [0, n - 2]')
     K = starts.size
+    idx = starts[:, None] + np.arange(length)[None, :]                 # [K, L] intervals
+    valid = (idx < ends[:, None])[..., None]
+    idx = np.where(valid[..., 0], idx, 0)
+    # identity steps beyond a window's end: lam_t = d = forcing = 0, sech = 1
+    c = {k: np.where(valid, grid.coef[k][idx], 0.0) for k in ('lam_t', 'd', 'lin', 'quad')}
+    c['sech'] = np.where(valid, grid.coef['sech'][idx], 1.0)
     wt = grid.wt_terminal[ends].copy()
     gt = grid.gt_terminal[ends].copy()
     w_keep = np.empty((K, keep, m, m))
     g_keep = np.empty((K, keep, m))
-    eye = np.eye(m)
-    c = grid.coef
     if keep == length + 1:
         w_keep[:, length] = wt
         g_keep[:, length] = gt
+    eye = np.eye(m)
+    diag = np.arange(m)
     for j in range(length - 1, -1, -1):
-        i = starts + j                       # interval [t_i, t_i+1]
-        active = i < ends
-        if np.any(active):
-            ia = i[active]
-            v = grid.v[ia]
-            vt = np.swapaxes(v, 1, 2)
-            lam_t, se, d = c['lam_t'][ia], c['sech'][ia], c['d'][ia]
-            z0 = vt @ wt[active] @ v
-            gh0 = np.einsum('kji,kj->ki', v, gt[active])
-            ba = np.einsum('kji,kj->ki', v, grid.b_tilde[ia + 1])
-            beta = np.einsum('kji,kj->ki', v, grid.b_tilde[ia] - grid.b_tilde[ia + 1]) / grid.h
-            lhs = eye + z0 * d[:, None, :]
-            sol = np.linalg.solve(lhs, np.concatenate([z0, gh0[:, :, None]], axis=2))
-            kk = _sym(sol[:, :, :m])
-            ek = se[:, :, None] * kk
-            z1 = ek * se[:, None, :]
-            z1[:, np.arange(m), np.arange(m)] += lam_t
-            forcing = (ek @ (c['n'][ia] * ba + c['pd'][ia] * beta)[:, :, None])[:, :, 0]
-            gh1 = se * sol[:, :, m] + d * ba + c['pb'][ia] * beta - forcing
-            wt[active] = _sym(v @ z1 @ vt)
-            gt[active] = np.einsum('kij,kj->ki', v, gh1)
+        vj = grid.v[idx[:, j]]
+        vtj = np.swapaxes(vj, 1, 2)
+        d, se = c['d'][:, j], c['sech'][:, j]
+        z0 = vtj @ wt @ vj
+        gh0 = vtj @ gt[..., None]
+        sol = np.linalg.solve(eye + z0 * d[:, None, :], np.concatenate([z0, gh0], axis=2))
+        kk = _sym(sol[:, :, :m])
+        ek = se[:, :, None] * kk
+        z1 = ek * se[:, None, :]
+        z1[:, diag, diag] += c['lam_t'][:, j]
+        gh1 = se * sol[:, :, m] + c['lin'][:, j] - (ek @ c['quad'][:, j, :, None])[..., 0]
+        wt = _sym(vj @ z1 @ vtj)
+        gt = (vj @ gh1[..., None])[..., 0]
         if j < keep:
             w_keep[:, j] = wt
             g_keep[:, j] = gt
