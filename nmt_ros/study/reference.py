@@ -291,3 +291,87 @@ def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
     u = np.array([excitation(t) for t in sol.t])
     return Simulation(t=sol.t, x=sol.y.T, u=u, x0=np.asarray(x0, dtype=float),
                       liftoff_s=t_lo, success=bool(sol.success), message=str(sol.message))
+
+
+@dataclass
+class ReferenceJump:
+    """The reference ("actual") jump: PO results, the shipped truth, and consistency checks."""
+
+    po: POResult                    # the final (refined) optimisation
+    starts: list[POResult]          # multi-start solutions on the coarse mesh
+    coarse: POResult                # best coarse solution (refined into ``po``)
+    simulation: Simulation          # forward simulation of the optimal excitations = truth
+    checks: dict
+    cpu_s: float                    # CPU of all optimisations (build + solves)
+    wall_s: float
+
+    def excitation(self, t: np.ndarray | float) -> np.ndarray:
+        return excitation_at(self.po.excitation_nodes, self.po.tf, t)
+
+
+def make_reference(model: JumperModel, settings: POSettings = POSettings(), starts: int = 5,
+                   coarse_intervals: int = 50, seed: int = 0, truth_rate_hz: float = 1080.0,
+                   flight_s: float = 0.05, progress: callable | None = None) -> ReferenceJump:
+    """Multi-start PO on a coarse mesh, refinement on ``settings.n_intervals``, then the truth.
+
+    The truth is the stiff forward simulation of the refined optimal excitations, sampled at
+    ``truth_rate_hz`` from t = 0 to lift-off + ``flight_s``.
+    """
+    say = progress or (lambda _msg: None)
+    c0, w0 = time.process_time(), time.perf_counter()
+    coarse_settings = POSettings(**{**asdict(settings), 'n_intervals': coarse_intervals})
+    say(f'building the NLP (N = {coarse_intervals})')
+    opt_c = JumpOptimizer(model, coarse_settings)
+    rng = np.random.default_rng(seed)
+    results = []
+    for k in range(starts):
+        z0 = opt_c.held_squat_guess() if k == 0 else opt_c.perturbed_guess(rng)
+        r = opt_c.solve(z0)
+        say(f'start {k + 1}/{starts}: {r.status}, {r.iterations} iterations, '
+            f'apex {r.apex_m:.5f} m, t_f {r.tf:.4f} s')
+        results.append(r)
+    ok = [r for r in results if r.success]
+    if not ok:
+        raise RuntimeError('no start of the jump optimisation converged: '
+                           + ', '.join(r.status for r in results))
+    best = max(ok, key=lambda r: r.apex_m)
+    say(f'refining on N = {settings.n_intervals}')
+    opt_f = JumpOptimizer(model, settings)
+    po = opt_f.solve(opt_f.guess_from(best))
+    if not po.success:
+        raise RuntimeError(f'mesh refinement of the jump optimisation failed: {po.status}')
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+
+    say('forward simulation of the optimal excitations (Radau)')
+    x_init = po.x[0]
+    exc = lambda t: excitation_at(po.excitation_nodes, po.tf, t)  # noqa: E731
+    probe = simulate_excitations(model, x_init, opt_f.squat.x0, exc, po.tf + 0.1)
+    if not np.isfinite(probe.liftoff_s):
+        raise RuntimeError('the forward simulation of the optimal excitations never lifts off')
+    t_end = np.floor((probe.liftoff_s + flight_s) * truth_rate_hz) / truth_rate_hz
+    t_eval = np.arange(0, int(round(t_end * truth_rate_hz)) + 1) / truth_rate_hz
+    sim = simulate_excitations(model, x_init, opt_f.squat.x0, exc, float(t_eval[-1]),
+                               t_eval=t_eval)
+    i_lo = int(np.searchsorted(probe.t, probe.liftoff_s))
+    lo_state = probe.x[i_lo]
+    height = model.jump_height(lo_state[:6], lo_state[6:12])
+    apexes = np.array([r.apex_m for r in ok])
+    # The optimiser's own trajectory vs the forward simulation (discretisation error).
+    x_opt = np.column_stack([np.interp(sim.t, po.t, po.x[:, i]) for i in range(NX)])
+    contact = sim.t <= min(probe.liftoff_s, po.tf)
+    checks = {
+        'starts': starts, 'starts_converged': len(ok),
+        'start_apex_spread_m': float(apexes.max() - apexes.min()),
+        'coarse_apex_m': best.apex_m, 'refined_apex_m': po.apex_m,
+        'mesh_refinement_apex_change_m': float(po.apex_m - best.apex_m),
+        'simulated_apex_m': height['apex_m'],
+        'simulation_vs_optimiser_apex_m': float(height['apex_m'] - po.apex_m),
+        'simulation_vs_optimiser_angle_max_deg': float(np.degrees(
+            np.abs(sim.x[contact, :4] - x_opt[contact, :4]).max())),
+        'jump_height_m': height['height_m'],
+        'rise_from_squat_m': float(height['apex_m'] - model.call(model.com, x_init[:6])[0][1]),
+        'liftoff_s': probe.liftoff_s, 'tf_s': po.tf,
+    }
+    sim.liftoff_s = probe.liftoff_s
+    return ReferenceJump(po=po, starts=results, coarse=best, simulation=sim, checks=checks,
+                         cpu_s=cpu, wall_s=wall)

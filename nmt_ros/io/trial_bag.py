@@ -1,0 +1,169 @@
+"""A trial (observations, and truth when synthetic) as a rosbag2 bag, and back.
+
+Topics (INTERFACES.md); JointState fields follow their ROS meaning where one exists:
+  /mocap/segment_angles        JointState [foot, shank, thigh, hat], position (rad), 120 Hz
+  /force_plate/wrench          WrenchStamped, force.x fore-aft, force.y vertical (N),
+                               torque.z moment about the foot COM (N m), frame_id 'foot_com'
+  /truth/segment_angles        JointState, position + velocity, 1080 Hz
+  /truth/generalized_coordinates  JointState [th1..th4, r1, r2], position + velocity
+  /truth/joint_torques         JointState [ankle, knee, hip]: position/velocity = OpenSim
+                               joint angle/rate, effort = torque (N m)
+  /truth/muscle_forces         JointState [gmax..ta]: position = musculotendon length (m),
+                               velocity = lengthening speed (m/s), effort = force (N)
+  /truth/muscle_activations    JointState, position = activation (0..1)
+  /truth/muscle_excitations    JointState, position = excitation (0..1)
+  /truth/ground_wrench         WrenchStamped (as the force plate, without noise and bias)
+  /truth/mocap_bias, /truth/force_plate_bias   the bias that was added (noise = obs - truth
+                               - bias), so anyone can check the synthesis independently.
+Header stamps are ``TRIAL_EPOCH_NS`` + trial time; the log time equals the stamp.
+Trial facts (lift-off, anchors, settings) go in metadata.yaml ``custom_data``.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from msg_adapters.joint_state import joint_states_from_arrays
+from msg_adapters.wrench import wrenches_from_arrays
+from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
+from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
+from nmt_ros.study.trial import TRIAL_EPOCH_NS, Observations, Truth
+
+ANGLES_TOPIC = '/mocap/segment_angles'
+WRENCH_TOPIC = '/force_plate/wrench'
+WRENCH_FRAME = 'foot_com'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+WRENCH_STAMPED = 'geometry_msgs/msg/WrenchStamped'
+
+
+def to_stamps_ns(t: np.ndarray, epoch_ns: int = TRIAL_EPOCH_NS) -> np.ndarray:
+    """Trial times [s] -> header stamps [ns] (rounded to the nanosecond)."""
+    return epoch_ns + np.rint(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def _wrench_arrays(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = w.shape[0]
+    force = np.column_stack([w[:, 0], w[:, 1], np.zeros(n)])
+    torque = np.column_stack([np.zeros(n), np.zeros(n), w[:, 2]])
+    return force, torque
+
+
+def trial_messages(obs: Observations, truth: Truth | None = None,
+                   components: dict | None = None,
+                   epoch_ns: int = TRIAL_EPOCH_NS) -> list[tuple[str, int, object]]:
+    """All (topic, stamp_ns, message) of a trial, sorted by time then topic."""
+    out: list[tuple[str, np.ndarray, list]] = []
+    sa = to_stamps_ns(obs.t_angles, epoch_ns)
+    sw = to_stamps_ns(obs.t_wrench, epoch_ns)
+    out.append((ANGLES_TOPIC, sa, joint_states_from_arrays(sa, SEGMENTS, position=obs.angles)))
+    f, tq = _wrench_arrays(obs.wrench)
+    out.append((WRENCH_TOPIC, sw, wrenches_from_arrays(sw, obs.frame_id, f, tq)))
+    if truth is not None:
+        from nmt_ros.model.jumper import default_model
+        model = default_model()
+        st = to_stamps_ns(truth.t, epoch_ns)
+        theta, = model.batch(model.joint_angles, truth.q)
+        theta_dot, = model.batch(model.joint_angles, truth.qd)
+        lmt, = model.batch(model.musculotendon_lengths, theta)
+        vmt, = model.batch(model.musculotendon_velocities, theta, theta_dot)
+        tf_, tt = _wrench_arrays(truth.s)
+        out += [
+            ('/truth/segment_angles', st, joint_states_from_arrays(
+                st, SEGMENTS, position=truth.q[:, :4], velocity=truth.qd[:, :4])),
+            ('/truth/generalized_coordinates', st, joint_states_from_arrays(
+                st, Q_NAMES, position=truth.q, velocity=truth.qd)),
+            ('/truth/joint_torques', st, joint_states_from_arrays(
+                st, JOINTS, position=theta, velocity=theta_dot, effort=truth.tau)),
+            ('/truth/muscle_forces', st, joint_states_from_arrays(
+                st, MUSCLES, position=lmt, velocity=vmt, effort=truth.f)),
+            ('/truth/muscle_activations', st, joint_states_from_arrays(
+                st, MUSCLES, position=truth.a)),
+            ('/truth/muscle_excitations', st, joint_states_from_arrays(
+                st, MUSCLES, position=truth.u)),
+            ('/truth/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, tf_, tt)),
+        ]
+    if components is not None:
+        bf, bt = _wrench_arrays(components['wrench_bias'])
+        out += [
+            ('/truth/mocap_bias', sa, joint_states_from_arrays(
+                sa, SEGMENTS, position=components['angle_bias'])),
+            ('/truth/force_plate_bias', sw, wrenches_from_arrays(sw, obs.frame_id, bf, bt)),
+        ]
+    rows = [(stamp, k, i) for k, (_, stamps, _) in enumerate(out)
+            for i, stamp in enumerate(stamps.tolist())]
+    rows.sort()
+    return [(out[k][0], stamp, out[k][2][i]) for stamp, k, i in rows]
+
+
+def write_trial_bag(path: str | os.PathLike, obs: Observations, truth: Truth | None = None,
+                    components: dict | None = None, custom_data: dict | None = None,
+                    epoch_ns: int = TRIAL_EPOCH_NS) -> BagInfo:
+    """Write a trial as a bag folder (refuses an existing non-empty folder)."""
+    data = {'nmt.trial_epoch_ns': str(epoch_ns)}
+    if truth is not None:
+        data['nmt.liftoff_s'] = repr(float(truth.liftoff_s))
+        data['nmt.contact_anchors_m'] = json.dumps([float(v) for v in truth.x0])
+    for k, v in (custom_data or {}).items():
+        data[k] = v if isinstance(v, str) else json.dumps(v)
+    with BagWriter(path, custom_data=data, flush_period_s=None) as bag:
+        for topic, stamp, msg in trial_messages(obs, truth, components, epoch_ns):
+            bag.write(topic, msg, stamp, stamp)
+    return bag_info(path)
+
+
+def _custom(path: Path) -> dict:
+    return dict(bag_info(path).custom_data or {})
+
+
+def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> Observations:
+    """The observation topics of any bag carrying them, as arrays (trial time from t0).
+
+    Trial time 0 is ``nmt.trial_epoch_ns`` when the bag says so, else the first stamp.
+    """
+    path = Path(path)
+    ang = read_arrays(path, ANGLES_TOPIC)
+    wr = read_arrays(path, WRENCH_TOPIC)
+    if epoch_ns is None:
+        epoch_ns = int(_custom(path).get('nmt.trial_epoch_ns',
+                                         min(ang.stamp_ns[0], wr.stamp_ns[0])))
+    angles = np.column_stack([ang.column(n) for n in SEGMENTS])
+    wrench = np.column_stack([wr.force[:, 0], wr.force[:, 1], wr.torque[:, 2]])
+    return Observations(t_angles=(ang.stamp_ns - epoch_ns) * 1e-9, angles=angles,
+                        t_wrench=(wr.stamp_ns - epoch_ns) * 1e-9, wrench=wrench,
+                        frame_id=wr.frame_id, info={'epoch_ns': epoch_ns})
+
+
+def has_truth(path: str | os.PathLike) -> bool:
+    names = {t.name for t in bag_info(path).topics}
+    return '/truth/generalized_coordinates' in names
+
+
+def read_truth(path: str | os.PathLike) -> Truth:
+    """The ``/truth/*`` topics of a synthetic bag as a :class:`Truth` (qdd by differences)."""
+    path = Path(path)
+    custom = _custom(path)
+    epoch_ns = int(custom.get('nmt.trial_epoch_ns', TRIAL_EPOCH_NS))
+    gc = read_arrays(path, '/truth/generalized_coordinates')
+    t = (gc.stamp_ns - epoch_ns) * 1e-9
+    q = np.column_stack([gc.column(n) for n in Q_NAMES])
+    qd = np.column_stack([gc.column(n, 'velocity') for n in Q_NAMES])
+
+    def muscles(topic: str, field: str) -> np.ndarray:
+        js = read_arrays(path, topic)
+        return np.column_stack([js.column(n, field) for n in MUSCLES])
+
+    jt = read_arrays(path, '/truth/joint_torques')
+    gw = read_arrays(path, '/truth/ground_wrench')
+    return Truth(
+        t=t, q=q, qd=qd, qdd=np.gradient(qd, t, axis=0),
+        a=muscles('/truth/muscle_activations', 'position'),
+        u=muscles('/truth/muscle_excitations', 'position'),
+        f=muscles('/truth/muscle_forces', 'effort'),
+        tau=np.column_stack([jt.column(n, 'effort') for n in JOINTS]),
+        s=np.column_stack([gw.force[:, 0], gw.force[:, 1], gw.torque[:, 2]]),
+        point_forces=np.full((t.size, 2, 2), np.nan),
+        x0=np.asarray(json.loads(custom['nmt.contact_anchors_m']), dtype=float),
+        liftoff_s=float(custom['nmt.liftoff_s']), info={'epoch_ns': epoch_ns})

@@ -1,0 +1,78 @@
+"""A trial's data as arrays: the "actual" performance (truth) and the observations.
+
+These small records are what flows between the study's steps (reference -> observations ->
+trackers -> metrics) and what ``nmt_ros.io.trial_bag`` writes to and reads from bags.
+Times are trial times in seconds (0 = onset of the jump); bags carry them as stamps offset by
+``TRIAL_EPOCH_NS``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.parameters import JOINTS, MUSCLES, SEGMENTS
+
+#: Header stamp of trial time 0 in the bags we write (2023-11-14T22:13:20Z): a fixed, nonzero
+#: epoch so that ROS time is never 0 (ROS treats 0 as "unset" under sim time).
+TRIAL_EPOCH_NS = 1_700_000_000 * 10**9
+
+
+@dataclass
+class Truth:
+    """The actual performance on a uniform grid (the force-plate rate)."""
+
+    t: np.ndarray        # [n] s
+    q: np.ndarray        # [n, 6] (rad, m)
+    qd: np.ndarray       # [n, 6]
+    qdd: np.ndarray      # [n, 6]
+    a: np.ndarray        # [n, 9] activations
+    u: np.ndarray        # [n, 9] excitations
+    f: np.ndarray        # [n, 9] musculotendon forces (N)
+    tau: np.ndarray      # [n, 3] joint torques by the muscles (N m) [ankle, knee, hip]
+    s: np.ndarray        # [n, 3] ground wrench on the foot: Fx, Fy (N), moment about foot COM
+    point_forces: np.ndarray  # [n, 2, 2] (heel, toe) x (Fx, Fy) (N)
+    x0: np.ndarray       # [2] contact anchors (m)
+    liftoff_s: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Segment angles [n, 4] (foot, shank, thigh, HAT)."""
+        return self.q[:, :4]
+
+    def contact_mask(self) -> np.ndarray:
+        """Samples of the ground-contact phase (t <= lift-off)."""
+        return self.t <= self.liftoff_s
+
+
+@dataclass
+class Observations:
+    """What a lab records: noisy, biased segment angles and ground wrench (unfiltered)."""
+
+    t_angles: np.ndarray   # [n1] s (120 Hz)
+    angles: np.ndarray     # [n1, 4] rad (foot, shank, thigh, HAT)
+    t_wrench: np.ndarray   # [n2] s (1080 Hz)
+    wrench: np.ndarray     # [n2, 3] Fx, Fy (N), moment about the foot COM (N m)
+    frame_id: str = 'foot_com'
+    info: dict = field(default_factory=dict)
+
+
+def truth_from_simulation(model: JumperModel, t: np.ndarray, x: np.ndarray, u: np.ndarray,
+                          x0: np.ndarray, liftoff_s: float, info: dict | None = None,
+                          ) -> Truth:
+    """Every truth signal from a sampled forward simulation (x = [q, qd, a])."""
+    q, qd, a = x[:, :6], x[:, 6:12], x[:, 12:]
+    xdot, = model.batch(model.musculoskeletal_ode, x, u, x0)
+    tau, f = model.batch(model.muscle_torques, q, qd, a)
+    s, = model.batch(model.contact_outputs, q, qd, x0)
+    pf, = model.batch(model.contact_forces, q, qd, x0)
+    return Truth(t=np.asarray(t, dtype=float), q=q, qd=qd, qdd=xdot[:, 6:12], a=a, u=u, f=f,
+                 tau=tau, s=s, point_forces=np.transpose(pf, (0, 2, 1)),
+                 x0=np.asarray(x0, dtype=float), liftoff_s=float(liftoff_s),
+                 info=dict(info or {}))
+
+
+__all__ = ['JOINTS', 'MUSCLES', 'SEGMENTS', 'TRIAL_EPOCH_NS', 'Observations', 'Truth',
+           'truth_from_simulation']

@@ -1,0 +1,176 @@
+"""Observation conditioning: zero-lag low-pass filters and the derivatives the trackers need.
+
+The paper low-pass filters the angles at 10 Hz and the ground force/moment at 50 Hz. We use a
+Butterworth filter run forward and backward (zero phase) and a quintic interpolating spline
+through the filtered samples for values and derivatives at any instant (angle rates and
+accelerations, force rates).
+
+Offline, the filter sees the whole recording. Live, it sees only ``lookahead_s`` of data
+beyond the instant being estimated: :class:`FixedLagConditioner` runs the SAME filter on a
+window that ends ``lookahead_s`` after that instant (odd extension at both ends, like
+``scipy.signal.filtfilt``'s default padding), which converges to the offline result as the
+look-ahead grows. The estimate for time t is final once data up to t + lookahead has arrived.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+from scipy.signal import butter, filtfilt
+
+
+@dataclass(frozen=True)
+class ConditioningSettings:
+    """Filter cut-offs [Hz] and order, and the live look-ahead [s] (None: offline)."""
+
+    angle_cutoff_hz: float | tuple[float, ...] = 10.0   # one value or one per segment
+    force_cutoff_hz: float | tuple[float, ...] = 50.0   # one value or one per channel
+    order: int = 2                  # per pass (forward-backward doubles it)
+    lookahead_s: float | None = None
+    window_s: float = 0.5           # history kept by the live filter
+
+
+def lowpass_zero_lag(y: np.ndarray, rate_hz: float, cutoff_hz: float | tuple[float, ...],
+                     order: int = 2) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of samples y [n, k] taken at ``rate_hz``.
+
+    Forward-backward (filtfilt) with Gustafsson's method for the initial conditions (the ends
+    are not pinned to the noisy first and last samples, as odd/even padding would do).
+    ``cutoff_hz`` is one value or one per column.
+    """
+    y = np.asarray(y, dtype=float)
+    cut = np.broadcast_to(np.asarray(cutoff_hz, dtype=float), y.shape[1:] or (1,))
+    out = np.empty_like(y)
+    for c in np.unique(cut):
+        if not 0 < c < rate_hz / 2:
+            raise ValueError(f'cut-off {c} Hz must be in (0, {rate_hz / 2}) Hz')
+        b, a = butter(order, c / (rate_hz / 2))
+        cols = np.nonzero(cut == c)[0] if y.ndim > 1 else slice(None)
+        out[..., cols] = filtfilt(b, a, y[..., cols], axis=0, method='gust')
+    return out
+
+
+class SmoothSignal:
+    """A filtered, uniformly sampled signal with values and derivatives at any instant."""
+
+    def __init__(self, t: np.ndarray, y: np.ndarray, rate_hz: float,
+                 cutoff_hz: float | tuple[float, ...],
+                 order: int = 2, degree: int = 5) -> None:
+        t = np.asarray(t, dtype=float)
+        if t.size < degree + 1:
+            raise ValueError(f'need at least {degree + 1} samples, got {t.size}')
+        if np.any(np.diff(t) <= 0):
+            raise ValueError('sample times must be strictly increasing')
+        self.t = t
+        self.raw = np.asarray(y, dtype=float)
+        self.filtered = lowpass_zero_lag(self.raw, rate_hz, cutoff_hz, order)
+        self._spline = make_interp_spline(t, self.filtered, k=degree, axis=0)
+        self._d1 = self._spline.derivative(1)
+        self._d2 = self._spline.derivative(2)
+
+    def __call__(self, t: np.ndarray | float, derivative: int = 0) -> np.ndarray:
+        """Value (or 1st/2nd derivative) at ``t``, clamped to the sampled interval."""
+        tt = np.clip(t, self.t[0], self.t[-1])
+        return (self._spline, self._d1, self._d2)[derivative](tt)
+
+
+@dataclass
+class ConditionedObservations:
+    """Filtered observations: segment angles (10 Hz) and ground wrench (50 Hz)."""
+
+    angles: SmoothSignal   # [.., 4] rad
+    wrench: SmoothSignal   # [.., 3] N, N, N m
+
+    def sample(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """theta, theta_dot, theta_ddot [n, 4] and s, s_dot [n, 3] at times t [n]."""
+        return {'theta': self.angles(t), 'theta_dot': self.angles(t, 1),
+                'theta_ddot': self.angles(t, 2), 's': self.wrench(t),
+                's_dot': self.wrench(t, 1)}
+
+    @property
+    def t_end(self) -> float:
+        return float(min(self.angles.t[-1], self.wrench.t[-1]))
+
+
+def _rate(t: np.ndarray) -> float:
+    dt = np.diff(t)
+    if dt.size == 0:
+        raise ValueError('need at least two samples')
+    mean = float(dt.mean())
+    if np.abs(dt - mean).max() > 0.05 * mean:
+        raise ValueError('samples must be uniformly spaced (resample or fill gaps first); '
+                         f'spacing ranges {dt.min():.6f}..{dt.max():.6f} s')
+    return 1.0 / mean
+
+
+def condition(t_angles: np.ndarray, angles: np.ndarray, t_wrench: np.ndarray,
+              wrench: np.ndarray, settings: ConditioningSettings = ConditioningSettings(),
+              ) -> ConditionedObservations:
+    """Offline (zero-lag, whole record) conditioning of both streams."""
+    return ConditionedObservations(
+        angles=SmoothSignal(t_angles, angles, _rate(t_angles), settings.angle_cutoff_hz,
+                            settings.order),
+        wrench=SmoothSignal(t_wrench, wrench, _rate(t_wrench), settings.force_cutoff_hz,
+                            settings.order))
+
+
+class FixedLagConditioner:
+    """Live conditioning with a fixed look-ahead: the offline filter on a sliding window.
+
+    Feed samples with ``add_angles``/``add_wrench``; ``final_until()`` is the latest instant
+    whose estimate no longer changes (last sample time minus the look-ahead);
+    ``sample(t)`` evaluates both streams at instants t <= final_until().
+    """
+
+    def __init__(self, settings: ConditioningSettings, angle_rate_hz: float = 120.0,
+                 wrench_rate_hz: float = 1080.0) -> None:
+        if settings.lookahead_s is None:
+            raise ValueError('FixedLagConditioner needs settings.lookahead_s (seconds)')
+        self.settings = settings
+        self.rates = (angle_rate_hz, wrench_rate_hz)
+        self._t: list[list[float]] = [[], []]
+        self._y: list[list[np.ndarray]] = [[], []]
+        self._cache: tuple[float, ConditionedObservations] | None = None
+
+    def add_angles(self, t: float, theta: np.ndarray) -> None:
+        self._add(0, t, theta)
+
+    def add_wrench(self, t: float, s: np.ndarray) -> None:
+        self._add(1, t, s)
+
+    def _add(self, k: int, t: float, y: np.ndarray) -> None:
+        if self._t[k] and t <= self._t[k][-1]:
+            raise ValueError(f'sample at t = {t:.6f} s is not after the previous one '
+                             f'({self._t[k][-1]:.6f} s)')
+        self._t[k].append(float(t))
+        self._y[k].append(np.asarray(y, dtype=float))
+        keep = self.settings.window_s + self.settings.lookahead_s + 0.1
+        while self._t[k] and self._t[k][-1] - self._t[k][0] > keep:
+            self._t[k].pop(0)
+            self._y[k].pop(0)
+        self._cache = None
+
+    def final_until(self) -> float:
+        """Latest instant whose estimate is final (-inf before enough data)."""
+        if len(self._t[0]) < 6 or len(self._t[1]) < 6:
+            return -np.inf
+        return min(self._t[0][-1], self._t[1][-1]) - self.settings.lookahead_s
+
+    def _conditioned(self) -> ConditionedObservations:
+        key = (self._t[0][-1], self._t[1][-1])
+        if self._cache is None or self._cache[0] != key:
+            st = self.settings
+            self._cache = (key, ConditionedObservations(
+                angles=SmoothSignal(np.array(self._t[0]), np.array(self._y[0]), self.rates[0],
+                                    st.angle_cutoff_hz, st.order),
+                wrench=SmoothSignal(np.array(self._t[1]), np.array(self._y[1]), self.rates[1],
+                                    st.force_cutoff_hz, st.order)))
+        return self._cache[1]
+
+    def sample(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        if t.max() > self.final_until() + 1e-12:
+            raise ValueError(f'estimates are final only up to {self.final_until():.4f} s, '
+                             f'asked for {t.max():.4f} s')
+        return self._conditioned().sample(t)

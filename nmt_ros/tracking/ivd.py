@@ -1,0 +1,122 @@
+"""The inverse-dynamics (IVD) baseline (METHOD.md section 3) and its forward simulation.
+
+Joint torques from the filtered observed segment angles (and their spline derivatives) and the
+measured ground wrench applied to the foot, bottom-up (the residual wrench is left on the
+HAT). Segment angles alone do not locate the foot: during contact the toe is taken as pinned
+at its initial position (the usual "foot fixed on the plate" assumption), which gives the
+ankle's position and its derivatives from the foot angle. The torques are then applied
+open-loop in a forward simulation of the full model (contact springs included); the
+field-default torques make it drift and leave the ground early (paper Fig. 3C).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+
+from nmt_ros.model.jumper import JumperModel
+from nmt_ros.tracking.conditioning import ConditionedObservations
+from nmt_ros.tracking.skeletal_tracker import SKTState, liftoff_time
+
+
+@dataclass
+class IVDResult:
+    """IVD torques on the observation grid and the open-loop forward simulation."""
+
+    t: np.ndarray            # [n] s (force-plate instants during the observed contact)
+    tau: np.ndarray          # [n, 3] N m
+    residual: np.ndarray     # [n, 3] HAT residual wrench (N, N, N m)
+    q: np.ndarray            # [n, 6] kinematics used (pinned toe)
+    sim_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    sim_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    sim_qd: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    sim_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    sim_liftoff_s: float = float('nan')
+    sim_status: str = ''
+    cpu_s: float = 0.0
+
+
+def pinned_toe_kinematics(model: JumperModel, theta: np.ndarray, theta_dot: np.ndarray,
+                          theta_ddot: np.ndarray, toe_ground: np.ndarray,
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, qd, qdd [n, 6] with the toe point fixed at ``toe_ground`` (x, y) [m].
+
+    r = p_toe - R(th1) c, with c the toe in the foot frame: rdot = -Rdot c, rddot = -Rddot c.
+    """
+    c = model.p.contact.points[1]
+    th, w, al = theta[:, 0], theta_dot[:, 0], theta_ddot[:, 0]
+    cs, sn = np.cos(th), np.sin(th)
+    rc = np.column_stack([cs * c[0] - sn * c[1], sn * c[0] + cs * c[1]])   # R c
+    prc = np.column_stack([-rc[:, 1], rc[:, 0]])                            # d(Rc)/dth
+    r = toe_ground[None, :] - rc
+    rd = -prc * w[:, None]
+    rdd = -(prc * al[:, None] - rc * (w ** 2)[:, None])
+    q = np.hstack([theta, r])
+    qd = np.hstack([theta_dot, rd])
+    qdd = np.hstack([theta_ddot, rdd])
+    return q, qd, qdd
+
+
+def inverse_dynamics_baseline(model: JumperModel, cond: ConditionedObservations,
+                              initial: SKTState, rate_hz: float = 1080.0,
+                              contact_threshold: float = 20.0) -> IVDResult:
+    """IVD torques during the observed contact (filtered vertical force > threshold [N])."""
+    c0 = time.process_time()
+    t_all = np.arange(0, int(np.floor(cond.t_end * rate_hz + 1e-9)) + 1) / rate_hz
+    fy = cond.wrench(t_all)[:, 1]
+    loaded = fy > contact_threshold
+    n = int(np.argmin(loaded)) if not loaded.all() else t_all.size
+    t = t_all[:max(n, 2)]
+    smp = cond.sample(t)
+    pts = np.asarray(model.call(model.positions, initial.q)[4])
+    toe0 = pts[:, 1]
+    q, qd, qdd = pinned_toe_kinematics(model, smp['theta'], smp['theta_dot'],
+                                       smp['theta_ddot'], toe0)
+    tau, resid = model.inverse_dynamics(q, qd, qdd, smp['s'], residual_at='hat')
+    return IVDResult(t=t, tau=tau, residual=resid, q=q, cpu_s=time.process_time() - c0)
+
+
+def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
+                       rate_hz: float = 1080.0, substeps: int = 4,
+                       t_end: float | None = None, max_angle_deg: float = 120.0) -> IVDResult:
+    """Forward simulation driven by the IVD torques (linear in time between samples).
+
+    RK4 with ``substeps`` steps per sample, from the tracker's initial state. Ends at the
+    end of the torques or when the model falls (a segment angle beyond ``max_angle_deg``).
+    """
+    t_end = float(result.t[-1]) if t_end is None else t_end
+    dt = 1.0 / (rate_hz * substeps)
+    fd = model.forward_dynamics
+    x0 = initial.x0
+
+    def tau_at(t: float) -> np.ndarray:
+        return np.array([np.interp(t, result.t, result.tau[:, j]) for j in range(3)])
+
+    def rhs(t: float, y: np.ndarray) -> np.ndarray:
+        return np.concatenate([y[6:], np.asarray(fd(y[:6], y[6:], tau_at(t), x0)).ravel()])
+
+    y = np.concatenate([initial.q, initial.qd])
+    n_steps = int(round(t_end / dt))
+    ts, ys = [0.0], [y.copy()]
+    status = 'completed'
+    for k in range(n_steps):
+        t = k * dt
+        k1 = rhs(t, y)
+        k2 = rhs(t + dt / 2, y + dt / 2 * k1)
+        k3 = rhs(t + dt / 2, y + dt / 2 * k2)
+        k4 = rhs(t + dt, y + dt * k3)
+        y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        if (k + 1) % substeps == 0:
+            ts.append((k + 1) * dt)
+            ys.append(y.copy())
+        if not np.isfinite(y).all() or np.degrees(np.abs(y[:4])).max() > max_angle_deg:
+            status = 'fell'
+            break
+    Y = np.array(ys)
+    s, = model.batch(model.contact_outputs, Y[:, :6], Y[:, 6:], x0)
+    result.sim_t, result.sim_q, result.sim_qd, result.sim_s = np.array(ts), Y[:, :6], \
+        Y[:, 6:], s
+    result.sim_liftoff_s = liftoff_time(result.sim_t, s[:, 1])
+    result.sim_status = status
+    return result

@@ -1,0 +1,376 @@
+"""Stage 1: the skeletal motion tracker (SKT), METHOD.md section 2, Eqs. 2-7.
+
+Outputs y = [theta (4 segment angles); s (3 contact outputs)]. Differentiating them until the
+joint torques appear (Eq. 3: angles twice; Eq. 4: contact forces once, the springs being
+damped) gives v = A(Q) + B(Q) tau with B 7x3; the feedback-linearising law (Eq. 5) solves it
+in the weighted least-squares sense for the tracking demand v of Eq. 7:
+
+    v_theta = thetadd_obs - 2 lam_th (thetad - thetad_obs) - lam_th^2 (theta - theta_obs)
+    v_s     = sdot_obs    - lam_s (s - s_obs)
+
+Rows are normalised before weighting so that Table 1's weights compare like with like: an
+angle row is divided by lam_th^2 * sigma_theta and a contact row by lam_s * sigma_s, i.e. each
+row is the tracking error it demands be removed, in units of a reference measurement accuracy
+(1 deg for angles, 2 % body weight for forces, 2 % BW x foot length for the moment).
+
+Ground-moment bias (the paper used Kuo's (1998) least squares "including bias"): the moment
+reference is ``s3_obs - b`` with a bias estimate b that follows the slow part of the moment
+disagreement, bdot = kappa (s3_obs - s3 - b): a recursive (online) form of estimating a slowly
+varying offset jointly with the states. kappa = 0 disables it.
+
+The model is simulated FORWARD with these torques (fixed-step RK4, ``substeps`` per force
+sample: the closed-loop force dynamics have poles at 1000 rad/s, so RK4 with steps of ~0.23 ms
+(lam*h ~ 0.23) is well inside its stability region). Jacobians ds/dQ are exact (automatic
+differentiation of the model's single definition) or numerical (central differences, as in
+the paper). Loss of control (the paper's third limitation) is detected and reported.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import time
+
+import casadi as ca
+import numpy as np
+
+from nmt_ros.model.jumper import JumperModel
+from nmt_ros.tracking.conditioning import ConditionedObservations
+
+N_REF = 18  # theta(4), theta_dot(4), theta_ddot(4), s(3), s_dot(3)
+
+
+@dataclass(frozen=True)
+class SKTSettings:
+    """Poles (1/s), least-squares weights (Table 1) and numerics of Stage 1."""
+
+    poles: tuple[float, ...] = (50.0, 50.0, 50.0, 50.0, 1000.0, 1000.0, 1000.0)
+    weights: tuple[float, ...] = (0.001, 0.7, 0.8, 1.0, 2.0, 2.0, 1.0)
+    angle_scale_deg: float | tuple[float, ...] = 1.0   # one value or one per segment
+    force_scale_bw: float = 0.02
+    moment_lever_m: float = 0.17
+    bias_rate: float = 20.0          # kappa (1/s) of the moment-bias estimate; 0 = off
+    jacobians: str = 'exact'         # 'exact' | 'numerical'
+    fd_step: float = 1e-6            # central-difference step for numerical Jacobians
+    substeps: int = 4                # RK4 steps per force-plate sample
+    static_start: bool = True        # the trial starts at rest (the paper's static squat)
+    # Loss-of-control detection.
+    max_angle_error_deg: float = 20.0    # shank, thigh or HAT vs the filtered observation
+    max_force_error_bw: float = 1.5      # vertical force vs the filtered observation
+    min_conditioning: float = 1e-10      # smallest/largest eigenvalue of B'WB
+
+    def with_(self, **kw: object) -> SKTSettings:
+        return replace(self, **kw)
+
+
+class SkeletalTrackerRecipe:
+    """The closed-loop system of Stage 1 compiled once: a pure function of (Q, b, ref, x0)."""
+
+    def __init__(self, model: JumperModel, settings: SKTSettings = SKTSettings()) -> None:
+        if settings.jacobians not in ('exact', 'numerical'):
+            raise ValueError("jacobians must be 'exact' or 'numerical'")
+        self.model = model
+        self.settings = settings
+        self._build()
+
+    def _build(self) -> None:
+        m, st = self.model, self.settings
+        q = ca.SX.sym('q', 6)
+        qd = ca.SX.sym('qd', 6)
+        b = ca.SX.sym('b')
+        ref = ca.SX.sym('ref', N_REF)
+        x0 = ca.SX.sym('x0', 2)
+        th_o, thd_o, thdd_o = ref[0:4], ref[4:8], ref[8:12]
+        s_o, sd_o = ref[12:15], ref[15:18]
+
+        f_drift, g_gain = m.drift_and_gain(q, qd, x0)       # Eq. 2a: [qd; qdd] = F + G tau
+        qdd_free, qdd_gain = f_drift[6:12], g_gain[6:12, :]
+        s = m.contact_outputs(q, qd, x0)
+        if st.jacobians == 'exact':
+            _, ds_dq, ds_dqd = m.contact_outputs_jacobian(q, qd, x0)
+        else:
+            h = st.fd_step
+            cols_q, cols_qd = [], []
+            for i in range(6):
+                e = ca.DM.zeros(6)
+                e[i] = h
+                cols_q.append((m.contact_outputs(q + e, qd, x0)
+                               - m.contact_outputs(q - e, qd, x0)) / (2 * h))
+                cols_qd.append((m.contact_outputs(q, qd + e, x0)
+                                - m.contact_outputs(q, qd - e, x0)) / (2 * h))
+            ds_dq, ds_dqd = ca.horzcat(*cols_q), ca.horzcat(*cols_qd)
+        # Eq. 3-4: [thetadd; sdot] = A + B tau
+        a_th, b_th = qdd_free[0:4], qdd_gain[0:4, :]
+        a_s = ds_dq @ qd + ds_dqd @ qdd_free
+        b_s = ds_dqd @ qdd_gain
+        A = ca.vertcat(a_th, a_s)
+        B = ca.vertcat(b_th, b_s)
+        # Eq. 7 with the moment reference corrected by the bias estimate b.
+        lam = ca.DM(st.poles)
+        s_ref = s_o - ca.vertcat(0, 0, b)
+        bdot = st.bias_rate * (s_o[2] - s[2] - b)
+        sd_ref = sd_o - ca.vertcat(0, 0, bdot)
+        v_th = thdd_o - 2 * lam[0:4] * (qd[0:4] - thd_o) - lam[0:4] ** 2 * (q[0:4] - th_o)
+        v_s = sd_ref - lam[4:7] * (s - s_ref)
+        v = ca.vertcat(v_th, v_s)
+        # Eq. 5: weighted least squares on normalised rows.
+        bw = m.p.body_weight
+        angle_sigma = np.radians(np.broadcast_to(st.angle_scale_deg, (4,)))
+        sigma = ca.DM(list(angle_sigma) + [st.force_scale_bw * bw] * 2
+                      + [st.force_scale_bw * bw * st.moment_lever_m])
+        order_gain = ca.vertcat(lam[0:4] ** 2, lam[4:7])
+        row_w = ca.sqrt(ca.DM(st.weights)) / (order_gain * sigma)
+        Bw = B * ca.repmat(row_w, 1, 3)
+        rw = (v - A) * row_w
+        normal = Bw.T @ Bw
+        tau = ca.solve(normal, Bw.T @ rw)
+        qdd = qdd_free + qdd_gain @ tau
+        residual = Bw @ tau - rw                     # unexplained demand, per row
+        self.closed_loop = ca.Function(
+            'skt_closed_loop', [q, qd, b, ref, x0],
+            [ca.vertcat(qd, qdd), bdot, tau, ca.vertcat(q[0:4], s), residual, normal],
+            ['q', 'qd', 'b', 'ref', 'x0'],
+            ['Qdot', 'bdot', 'tau', 'y', 'residual', 'normal'])
+        self.rhs = ca.Function('skt_rhs', [q, qd, b, ref, x0], [ca.vertcat(qd, qdd), bdot])
+
+
+@dataclass
+class SKTState:
+    """Explicit state of the tracker (the recipe is stateless)."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    b: float
+    x0: np.ndarray
+
+
+@dataclass
+class SKTResult:
+    """Stage 1 output on the output grid (the force-plate samples)."""
+
+    t: np.ndarray            # [n] s
+    q: np.ndarray            # [n, 6]
+    qd: np.ndarray           # [n, 6]
+    qdd: np.ndarray          # [n, 6]
+    tau: np.ndarray          # [n, 3] joint torques (N m): ankle, knee, hip
+    s: np.ndarray            # [n, 3] synthesised ground wrench
+    bias: np.ndarray         # [n] moment-bias estimate (N m)
+    residual: np.ndarray     # [n, 7] normalised least-squares residual
+    x0: np.ndarray
+    status: str = 'ok'       # 'ok' | 'lost_control'
+    events: list = field(default_factory=list)
+    cpu_s: float = 0.0
+    liftoff_s: float = float('nan')
+
+    @property
+    def ok(self) -> bool:
+        return self.status == 'ok'
+
+
+def initial_state(model: JumperModel, ref0: np.ndarray,
+                  settings: SKTSettings = SKTSettings()) -> SKTState:
+    """Initial state of the tracked model from the observations at t = 0.
+
+    ``static_start`` (the paper's jump starts from a static squat): the posture closest to
+    the observed angles, in the same normalised, weighted sense as Eq. 5, that is in static
+    equilibrium on its springs and reproduces the observed ground moment; rates are zero.
+    Otherwise: the filtered observed angles and rates, with the ankle height that makes the
+    springs carry the observed vertical force. In both cases r1 = 0 and the horizontal anchors
+    are placed under the contact points (springs unstretched).
+    """
+    from scipy.optimize import least_squares
+
+    st = settings
+    ankle_h = -float(model.p.contact.points[:, 1].min())
+    bw = model.p.body_weight
+    zero = np.zeros(6)
+
+    def pose(z: np.ndarray) -> np.ndarray:
+        return np.r_[z[:4], 0.0, ankle_h + z[4]]
+
+    if st.static_start:
+        w = np.sqrt(np.asarray(st.weights))
+        sig_m = st.force_scale_bw * bw * st.moment_lever_m
+
+        def residual(z: np.ndarray) -> np.ndarray:
+            q = pose(z)
+            x0 = model.anchors_at(q)
+            gen = (model.call(model.inertial_gravity, q, zero)[0]
+                   + model.call(model.contact_generalized, q, zero, x0)[0])
+            s = model.call(model.contact_outputs, q, zero, x0)[0]
+            # Whole-body static balance: rigid rotation about the ankle and vertical
+            # translation (joint torques cancel in these combinations), weighted heavily.
+            balance = np.array([gen[:4].sum() / (0.01 * bw), gen[5] / (0.001 * bw)])
+            angles = w[:4] * (z[:4] - ref0[0:4]) / np.radians(
+                np.broadcast_to(st.angle_scale_deg, (4,)))
+            moment = w[6] * (s[2] - ref0[14]) / sig_m
+            return np.r_[balance * 1e3, angles, moment]
+
+        z0 = np.r_[ref0[0:4], -0.002]
+        sol = least_squares(residual, z0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        q = pose(sol.x)
+        return SKTState(t=0.0, q=q, qd=zero.copy(), b=0.0, x0=model.anchors_at(q))
+
+    q = pose(np.r_[ref0[0:4], 0.0])
+    qd = np.zeros(6)
+    qd[:4] = ref0[4:8]
+    fy_obs = float(ref0[13])
+    lo, hi = -0.05, 0.2
+    for _ in range(200):  # bisection on the vertical force (monotone in r2)
+        mid = 0.5 * (lo + hi)
+        q[5] = ankle_h + mid
+        fy = float(model.call(model.contact_outputs, q, qd, model.anchors_at(q))[0][1])
+        lo, hi = (mid, hi) if fy > fy_obs else (lo, mid)
+    q[5] = ankle_h + 0.5 * (lo + hi)
+    return SKTState(t=0.0, q=q, qd=qd, b=0.0, x0=model.anchors_at(q))
+
+
+def reference_arrays(cond: ConditionedObservations, t: np.ndarray) -> np.ndarray:
+    """Stack the conditioned observations at times t into [n, 18] tracker references."""
+    smp = cond.sample(t)
+    return np.hstack([smp['theta'], smp['theta_dot'], smp['theta_ddot'], smp['s'],
+                      smp['s_dot']])
+
+
+class SkeletalTracker:
+    """Recipe + stepping: integrates the closed loop in step with the data (batch or live)."""
+
+    def __init__(self, model: JumperModel, settings: SKTSettings = SKTSettings(),
+                 rate_hz: float = 1080.0) -> None:
+        self.model = model
+        self.settings = settings
+        self.recipe = SkeletalTrackerRecipe(model, settings)
+        self.rate_hz = rate_hz
+        self.dt = 1.0 / (rate_hz * settings.substeps)
+
+    def fine_times(self, t0: float, n_samples: int) -> np.ndarray:
+        """RK4 stage instants for n output samples after t0 (half-step grid)."""
+        k = self.settings.substeps * n_samples
+        return t0 + np.arange(0, 2 * k + 1) * (self.dt / 2)
+
+    def advance(self, state: SKTState, refs: np.ndarray) -> tuple[SKTState, dict]:
+        """Integrate over len(refs)//(2*substeps) output samples; refs on ``fine_times``.
+
+        Returns the new state and the outputs at each output sample's END instant.
+        """
+        st = self.settings
+        rhs = self.recipe.rhs
+        n_sub = (refs.shape[0] - 1) // 2
+        dt = self.dt
+        Q = np.concatenate([state.q, state.qd])
+        b = state.b
+        x0 = state.x0
+        outs = []
+        for k in range(n_sub):
+            r0, r1, r2 = refs[2 * k], refs[2 * k + 1], refs[2 * k + 2]
+            k1, c1 = rhs(Q[:6], Q[6:], b, r0, x0)
+            k1, c1 = np.asarray(k1).ravel(), float(c1)
+            Qa = Q + 0.5 * dt * k1
+            k2, c2 = rhs(Qa[:6], Qa[6:], b + 0.5 * dt * c1, r1, x0)
+            k2, c2 = np.asarray(k2).ravel(), float(c2)
+            Qb = Q + 0.5 * dt * k2
+            k3, c3 = rhs(Qb[:6], Qb[6:], b + 0.5 * dt * c2, r1, x0)
+            k3, c3 = np.asarray(k3).ravel(), float(c3)
+            Qc = Q + dt * k3
+            k4, c4 = rhs(Qc[:6], Qc[6:], b + dt * c3, r2, x0)
+            k4, c4 = np.asarray(k4).ravel(), float(c4)
+            Q = Q + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            b = b + dt / 6 * (c1 + 2 * c2 + 2 * c3 + c4)
+            if (k + 1) % st.substeps == 0:
+                outs.append((Q.copy(), b, r2))
+        new = SKTState(t=state.t + n_sub * dt, q=Q[:6].copy(), qd=Q[6:].copy(), b=b, x0=x0)
+        return new, self._outputs(outs, x0)
+
+    def _outputs(self, outs: list, x0: np.ndarray) -> dict:
+        """Torques, outputs and diagnostics at the output samples (one batched call)."""
+        Qs = np.array([o[0] for o in outs])
+        bs = np.array([o[1] for o in outs])
+        refs = np.array([o[2] for o in outs])
+        m = self.model
+        Qdot, _, tau, y, resid, normal = m.batch(self.recipe.closed_loop, Qs[:, :6], Qs[:, 6:],
+                                                  bs[:, None], refs, x0)
+        eig = np.linalg.eigvalsh(normal)
+        return {'Q': Qs, 'qdd': Qdot[:, 6:], 'tau': tau, 'y': y, 'b': bs, 'ref': refs,
+                'residual': resid, 'conditioning': eig[:, 0] / eig[:, -1]}
+
+    def check_control(self, out: dict, t: np.ndarray) -> list[dict]:
+        """Loss-of-control events (first per kind) in a block of outputs."""
+        st = self.settings
+        events = []
+        y, ref = out['y'], out['ref']
+        finite = np.isfinite(out['Q']).all(axis=1) & np.isfinite(out['tau']).all(axis=1)
+        err_angle = np.degrees(np.abs(y[:, 1:4] - ref[:, 1:4])).max(axis=1)
+        err_force = np.abs(y[:, 5] - ref[:, 13]) / self.model.p.body_weight
+        checks = [
+            (~finite, 'non-finite state or torque (the simulation diverged)'),
+            (err_angle > st.max_angle_error_deg,
+             f'segment angle error above {st.max_angle_error_deg:g} deg'),
+            (err_force > st.max_force_error_bw,
+             f'vertical ground force error above {st.max_force_error_bw:g} BW'),
+            (out['conditioning'] < st.min_conditioning,
+             'the least-squares system lost rank (torques no longer determined)'),
+        ]
+        for mask, reason in checks:
+            if mask.any():
+                i = int(np.argmax(mask))
+                events.append({'t': float(t[i]), 'reason': reason,
+                               'angle_error_deg': float(err_angle[i]),
+                               'force_error_bw': float(err_force[i])})
+        return events
+
+
+def track(model: JumperModel, cond: ConditionedObservations,
+          settings: SKTSettings = SKTSettings(), rate_hz: float = 1080.0,
+          t_end: float | None = None, block: int = 27) -> SKTResult:
+    """Batch Stage 1 over the whole recording: the live stepping fed every sample.
+
+    Output samples are at k / rate_hz (the force-plate instants). Stops at the first loss of
+    control and reports it (status 'lost_control', events) with the outputs so far.
+    """
+    c0 = time.process_time()
+    tracker = SkeletalTracker(model, settings, rate_hz)
+    t_end = cond.t_end if t_end is None else min(t_end, cond.t_end)
+    n_out = int(np.floor(t_end * rate_hz + 1e-9))
+    ref0 = reference_arrays(cond, np.array([0.0]))[0]
+    state = initial_state(model, ref0, settings)
+    t_all, chunks, events = [0.0], [], []
+    first = tracker._outputs([(np.concatenate([state.q, state.qd]), 0.0, ref0)], state.x0)
+    chunks.append(first)
+    done = 0
+    status = 'ok'
+    while done < n_out:
+        n = min(block, n_out - done)
+        t_fine = tracker.fine_times(done / rate_hz, n)
+        refs = reference_arrays(cond, t_fine)
+        state, out = tracker.advance(state, refs)
+        t_blk = (done + 1 + np.arange(n)) / rate_hz
+        ev = tracker.check_control(out, t_blk)
+        chunks.append(out)
+        t_all.extend(t_blk.tolist())
+        done += n
+        if ev:
+            events = ev
+            status = 'lost_control'
+            break
+    cat = {k: np.concatenate([c[k] for c in chunks]) for k in ('Q', 'qdd', 'tau', 'y', 'b',
+                                                                 'residual')}
+    t = np.array(t_all)
+    res = SKTResult(t=t, q=cat['Q'][:, :6], qd=cat['Q'][:, 6:], qdd=cat['qdd'],
+                    tau=cat['tau'], s=cat['y'][:, 4:7], bias=cat['b'],
+                    residual=cat['residual'], x0=state.x0, status=status, events=events,
+                    cpu_s=time.process_time() - c0)
+    res.liftoff_s = liftoff_time(res.t, res.s[:, 1])
+    return res
+
+
+def liftoff_time(t: np.ndarray, fy: np.ndarray, threshold: float = 1.0) -> float:
+    """First downward crossing of ``threshold`` N after the force exceeded it (interpolated)."""
+    above = fy > threshold
+    if not above.any():
+        return float('nan')
+    start = int(np.argmax(above))
+    below = np.nonzero(~above[start:])[0]
+    if below.size == 0:
+        return float('nan')
+    i = start + int(below[0])
+    f0, f1 = fy[i - 1], fy[i]
+    return float(t[i - 1] + (t[i] - t[i - 1]) * (f0 - threshold) / (f0 - f1))
