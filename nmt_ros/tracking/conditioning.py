@@ -92,6 +92,10 @@ class ConditionedObservations:
     def t_end(self) -> float:
         return float(min(self.angles.t[-1], self.wrench.t[-1]))
 
+    def final_until(self) -> float:
+        """Offline: every instant of the recording is final."""
+        return self.t_end
+
 
 def _rate(t: np.ndarray) -> float:
     dt = np.diff(t)

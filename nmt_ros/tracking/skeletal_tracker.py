@@ -318,46 +318,82 @@ class SkeletalTracker:
         return events
 
 
+class Stage1Stream:
+    """Stage 1 run in step with the data: the single code path of batch and live tracking.
+
+    ``conditioner`` provides ``final_until()`` (the latest instant whose conditioned
+    observations are final) and ``sample(t)`` (see ``conditioning``): offline conditioned
+    observations (batch) or a :class:`~nmt_ros.tracking.conditioning.FixedLagConditioner`
+    fed by a live node. ``poll()`` advances the tracker over every output sample (the
+    force-plate instants k / rate_hz) that the data now allows, and returns their outputs.
+    """
+
+    def __init__(self, model: JumperModel, conditioner: object,
+                 settings: SKTSettings = SKTSettings(), rate_hz: float = 1080.0,
+                 block: int = 27) -> None:
+        self.model = model
+        self.tracker = SkeletalTracker(model, settings, rate_hz)
+        self.conditioner = conditioner
+        self.rate_hz = rate_hz
+        self.block = block
+        self.state: SKTState | None = None
+        self.done = 0                 # output samples integrated past t = 0
+        self.status = 'ok'
+        self.events: list[dict] = []
+
+    def poll(self, t_end: float | None = None) -> dict | None:
+        """Outputs for the newly final samples (None if none): 't' and the outputs' arrays."""
+        if self.status != 'ok':
+            return None
+        final = self.conditioner.final_until()
+        if t_end is not None:
+            final = min(final, t_end)
+        chunks, times = [], []
+        if self.state is None:
+            if final < 0.0:
+                return None
+            ref0 = reference_arrays(self.conditioner, np.array([0.0]))[0]
+            self.state = initial_state(self.model, ref0, self.tracker.settings)
+            q0 = np.concatenate([self.state.q, self.state.qd])
+            chunks.append(self.tracker._outputs([(q0, 0.0, ref0)], self.state.x0))
+            times.append(np.array([0.0]))
+        n_final = int(np.floor(final * self.rate_hz + 1e-9))
+        while self.done < n_final and self.status == 'ok':
+            n = min(self.block, n_final - self.done)
+            refs = reference_arrays(self.conditioner,
+                                    self.tracker.fine_times(self.done / self.rate_hz, n))
+            self.state, out = self.tracker.advance(self.state, refs)
+            t_blk = (self.done + 1 + np.arange(n)) / self.rate_hz
+            self.done += n
+            chunks.append(out)
+            times.append(t_blk)
+            ev = self.tracker.check_control(out, t_blk)
+            if ev:
+                self.events = ev
+                self.status = 'lost_control'
+        if not chunks:
+            return None
+        cat = {k: np.concatenate([c[k] for c in chunks])
+               for k in ('Q', 'qdd', 'tau', 'y', 'b', 'residual', 'conditioning')}
+        cat['t'] = np.concatenate(times)
+        return cat
+
+
 def track(model: JumperModel, cond: ConditionedObservations,
           settings: SKTSettings = SKTSettings(), rate_hz: float = 1080.0,
           t_end: float | None = None, block: int = 27) -> SKTResult:
-    """Batch Stage 1 over the whole recording: the live stepping fed every sample.
+    """Batch Stage 1 over the whole recording: :class:`Stage1Stream` fed every sample.
 
     Output samples are at k / rate_hz (the force-plate instants). Stops at the first loss of
     control and reports it (status 'lost_control', events) with the outputs so far.
     """
     c0 = time.process_time()
-    tracker = SkeletalTracker(model, settings, rate_hz)
-    t_end = cond.t_end if t_end is None else min(t_end, cond.t_end)
-    n_out = int(np.floor(t_end * rate_hz + 1e-9))
-    ref0 = reference_arrays(cond, np.array([0.0]))[0]
-    state = initial_state(model, ref0, settings)
-    t_all, chunks, events = [0.0], [], []
-    first = tracker._outputs([(np.concatenate([state.q, state.qd]), 0.0, ref0)], state.x0)
-    chunks.append(first)
-    done = 0
-    status = 'ok'
-    while done < n_out:
-        n = min(block, n_out - done)
-        t_fine = tracker.fine_times(done / rate_hz, n)
-        refs = reference_arrays(cond, t_fine)
-        state, out = tracker.advance(state, refs)
-        t_blk = (done + 1 + np.arange(n)) / rate_hz
-        ev = tracker.check_control(out, t_blk)
-        chunks.append(out)
-        t_all.extend(t_blk.tolist())
-        done += n
-        if ev:
-            events = ev
-            status = 'lost_control'
-            break
-    cat = {k: np.concatenate([c[k] for c in chunks]) for k in ('Q', 'qdd', 'tau', 'y', 'b',
-                                                                 'residual')}
-    t = np.array(t_all)
-    res = SKTResult(t=t, q=cat['Q'][:, :6], qd=cat['Q'][:, 6:], qdd=cat['qdd'],
+    stream = Stage1Stream(model, cond, settings, rate_hz, block)
+    cat = stream.poll(t_end)
+    res = SKTResult(t=cat['t'], q=cat['Q'][:, :6], qd=cat['Q'][:, 6:], qdd=cat['qdd'],
                     tau=cat['tau'], s=cat['y'][:, 4:7], bias=cat['b'],
-                    residual=cat['residual'], x0=state.x0, status=status, events=events,
-                    cpu_s=time.process_time() - c0)
+                    residual=cat['residual'], x0=stream.state.x0, status=stream.status,
+                    events=stream.events, cpu_s=time.process_time() - c0)
     res.liftoff_s = liftoff_time(res.t, res.s[:, 1])
     return res
 
