@@ -167,3 +167,57 @@ def read_truth(path: str | os.PathLike) -> Truth:
         point_forces=np.full((t.size, 2, 2), np.nan),
         x0=np.asarray(json.loads(custom['nmt.contact_anchors_m']), dtype=float),
         liftoff_s=float(custom['nmt.liftoff_s']), info={'epoch_ns': epoch_ns})
+
+
+def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS,
+                      ) -> list[tuple[str, int, object]]:
+    """The /nmt/* estimate topics of a batch NMT run, stamped with observation time."""
+    out = []
+    skt = run.skt
+    st = to_stamps_ns(skt.t, epoch_ns)
+    theta, = model.batch(model.joint_angles, skt.q)
+    theta_dot, = model.batch(model.joint_angles, skt.qd)
+    f, tq = _wrench_arrays(skt.s)
+    out += [
+        ('/nmt/skeletal/joint_torques', st, joint_states_from_arrays(
+            st, JOINTS, position=theta, velocity=theta_dot, effort=skt.tau)),
+        ('/nmt/skeletal/segment_angles', st, joint_states_from_arrays(
+            st, SEGMENTS, position=skt.q[:, :4], velocity=skt.qd[:, :4])),
+        ('/nmt/skeletal/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, f, tq)),
+    ]
+    ivd = run.ivd
+    si = to_stamps_ns(ivd.t, epoch_ns)
+    out.append(('/nmt/ivd/joint_torques', si, joint_states_from_arrays(
+        si, JOINTS, effort=ivd.tau)))
+    if run.stage2 is not None:
+        s2 = run.stage2
+        ss = to_stamps_ns(s2.t, epoch_ns)
+        keep = np.searchsorted(skt.t, s2.t - 1e-12)   # Stage 2 runs on the Stage-1 grid
+        th = theta[keep]
+        lmt, = model.batch(model.musculotendon_lengths, th)
+        vmt, = model.batch(model.musculotendon_velocities, th, theta_dot[keep])
+        out += [
+            ('/nmt/muscle/forces', ss, joint_states_from_arrays(
+                ss, MUSCLES, position=lmt, velocity=vmt, effort=s2.f)),
+            ('/nmt/muscle/activations', ss, joint_states_from_arrays(
+                ss, MUSCLES, position=s2.a)),
+            ('/nmt/muscle/excitations', ss, joint_states_from_arrays(
+                ss, MUSCLES, position=s2.u)),
+        ]
+    rows = [(stamp, k, i) for k, (_, stamps, _) in enumerate(out)
+            for i, stamp in enumerate(stamps.tolist())]
+    rows.sort()
+    return [(out[k][0], stamp, out[k][2][i]) for stamp, k, i in rows]
+
+
+def write_estimates_bag(path: str | os.PathLike, model: object, run: object,
+                        epoch_ns: int = TRIAL_EPOCH_NS, custom_data: dict | None = None,
+                        ) -> BagInfo:
+    """A batch NMT run's estimates as a bag folder (topics of ``estimate_messages``)."""
+    data = {'nmt.trial_epoch_ns': str(epoch_ns)}
+    data.update({k: v if isinstance(v, str) else json.dumps(v)
+                 for k, v in (custom_data or {}).items()})
+    with BagWriter(path, custom_data=data, flush_period_s=None) as bag:
+        for topic, stamp, msg in estimate_messages(model, run, epoch_ns):
+            bag.write(topic, msg, stamp, stamp)
+    return bag_info(path)

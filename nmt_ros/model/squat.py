@@ -68,6 +68,37 @@ def _posture(model: JumperModel, joint_deg: tuple[float, float, float]) -> tuple
     return q, model.anchors_at(q)
 
 
+def static_activations(model: JumperModel, q: np.ndarray, tau: np.ndarray,
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Activations a [9] in [0, 1] with min sum a^2 whose muscle torques at rest equal tau.
+
+    At zero speed the force is affine in a (F = F_passive + a F_active), so the torque
+    equality C F = tau is linear in a: a small QP (SLSQP, then an exact polish on the free
+    set). Returns (a, f). Raises if the torques cannot be produced.
+    """
+    theta = model.call(model.joint_angles, q)[0]
+    lmt = model.call(model.musculotendon_lengths, theta)[0]
+    vmt = np.zeros(9)
+    C = model.call(model.moment_arm_matrix, theta)[0]
+    f_passive = model.call(model.muscle_force, np.zeros(9), lmt, vmt)[0]
+    f_unit = model.call(model.muscle_force, np.ones(9), lmt, vmt)[0] - f_passive
+    A = C * f_unit[None, :]
+    b = np.asarray(tau, dtype=float) - C @ f_passive
+    res = minimize(lambda a: 0.5 * a @ a, np.full(9, 0.1), jac=lambda a: a,
+                   constraints=[{'type': 'eq', 'fun': lambda a: (A @ a - b) / 100.0,
+                                 'jac': lambda a: A / 100.0}],
+                   bounds=[(0.0, 1.0)] * 9, method='SLSQP',
+                   options={'ftol': 1e-16, 'maxiter': 500})
+    if not res.success:
+        raise RuntimeError(f'static activations: the torques {tau} cannot be produced at rest '
+                           f'({res.message})')
+    a = np.clip(res.x, 0.0, 1.0)
+    free = (a > 1e-9) & (a < 1 - 1e-9)
+    if free.any():
+        a[free] += np.linalg.lstsq(A[:, free], b - A @ a, rcond=None)[0]
+    return a, f_passive + f_unit * a
+
+
 def solve_static_squat(model: JumperModel, joint_deg: tuple[float, float, float] = (25.0, -70.0,
                                                                                     80.0),
                        ) -> StaticSquat:
@@ -78,32 +109,10 @@ def solve_static_squat(model: JumperModel, joint_deg: tuple[float, float, float]
     qd = np.zeros(6)
     # Joint torques: the T-rows of Eq. 1 at rest (foot, shank, thigh equations are exact once
     # the whole-body balance holds).
-    tau, resid = model.inverse_dynamics(q, qd, np.zeros(6),
-                                        model.call(model.contact_outputs, q, qd, x0)[0][None])
+    tau, _resid = model.inverse_dynamics(q, qd, np.zeros(6),
+                                         model.call(model.contact_outputs, q, qd, x0)[0][None])
     tau = tau[0]
-    theta = model.call(model.joint_angles, q)[0]
-    lmt = model.call(model.musculotendon_lengths, theta)[0]
-    vmt = np.zeros(9)
-    C = model.call(model.moment_arm_matrix, theta)[0]
-    f_passive = model.call(model.muscle_force, np.zeros(9), lmt, vmt)[0]
-    f_unit = model.call(model.muscle_force, np.ones(9), lmt, vmt)[0] - f_passive
-    # tau = C (f_passive + diag(f_unit) a): linear in a.
-    A = C * f_unit[None, :]
-    b = tau - C @ f_passive
-    res = minimize(lambda a: 0.5 * a @ a, np.full(9, 0.1), jac=lambda a: a,
-                   constraints=[{'type': 'eq', 'fun': lambda a: (A @ a - b) / 100.0,
-                                 'jac': lambda a: A / 100.0}],
-                   bounds=[(0.0, 1.0)] * 9, method='SLSQP',
-                   options={'ftol': 1e-16, 'maxiter': 500})
-    if not res.success:
-        raise RuntimeError(f'static squat: activation solve failed: {res.message}')
-    a = np.clip(res.x, 0.0, 1.0)
-    # Polish the equality exactly on the active set (the SLSQP tolerance is ~1e-10 N m).
-    free = (a > 1e-9) & (a < 1 - 1e-9)
-    if free.any():
-        da = np.linalg.lstsq(A[:, free], b - A @ a, rcond=None)[0]
-        a[free] += da
-    f = f_passive + f_unit * a
+    a, f = static_activations(model, q, tau)
     # Excitation that holds each activation constant: adot = 0 in Eq. 8a.
     beta = model.p.muscles.tau_act / model.p.muscles.tau_deact
     u = beta * a / (1.0 - (1.0 - beta) * a)

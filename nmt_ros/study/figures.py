@@ -71,3 +71,115 @@ def plot_reference_jump(truth: Truth, obs: Observations | None, path: str | Path
 
 
 __all__ = ['MUSCLE_LABELS', 'SEGMENTS', 'SEGMENT_LABELS', 'plot_reference_jump']
+
+
+JOINT_LABELS = ('Ankle', 'Knee', 'Hip')
+
+
+def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) -> Path:
+    """Paper Fig. 3: joint torques, angles, ground forces and moment: actual/SKT/IVD/observed."""
+    skt, ivd = run.skt, run.ivd
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8.5), constrained_layout=True)
+    ax = axes[0, 0]
+    for j, label in enumerate(JOINT_LABELS):
+        line, = ax.plot(truth.t, truth.tau[:, j], lw=2.2, alpha=0.5, label=f'{label} actual')
+        ax.plot(skt.t, skt.tau[:, j], '-', lw=1, color=line.get_color(), label=f'{label} SKT')
+        ax.plot(ivd.t, ivd.tau[:, j], '--', lw=1, color=line.get_color(), label=f'{label} IVD')
+    ax.set(title='(A) Joint torques: actual (thick), SKT (solid), IVD (dashed)',
+           ylabel='torque (N m)')
+    ax.legend(fontsize=7, ncol=3)
+    ax = axes[0, 1]
+    for j, label in enumerate(SEGMENT_LABELS):
+        line, = ax.plot(truth.t, np.degrees(truth.q[:, j]), lw=2.2, alpha=0.5, label=label)
+        ax.plot(skt.t, np.degrees(skt.q[:, j]), '-', lw=1, color=line.get_color())
+        ax.plot(ivd.sim_t, np.degrees(ivd.sim_q[:, j]), '--', lw=1, color=line.get_color())
+        ax.plot(obs.t_angles, np.degrees(obs.angles[:, j]), 'o', ms=3, mfc='none',
+                color=line.get_color())
+    ax.set(title='(B) Segment angles: actual, SKT, IVD simulation, raw (o)',
+           ylabel='angle (deg)')
+    ax.legend(fontsize=7)
+    ax = axes[1, 0]
+    for k, label in ((0, 'fore-aft'), (1, 'vertical')):
+        line, = ax.plot(truth.t, truth.s[:, k], lw=2.2, alpha=0.5, label=f'{label} actual')
+        ax.plot(skt.t, skt.s[:, k], '-', lw=1, color=line.get_color(), label=f'{label} SKT')
+        ax.plot(ivd.sim_t, ivd.sim_s[:, k], '--', lw=1, color=line.get_color(),
+                label=f'{label} IVD sim')
+        ax.plot(obs.t_wrench, obs.wrench[:, k], '.', ms=1.5, alpha=0.3, color=line.get_color())
+    ax.set(title='(C) Ground forces (dots: raw)', ylabel='force (N)')
+    ax.legend(fontsize=7)
+    ax = axes[1, 1]
+    ax.plot(truth.t, truth.s[:, 2], 'k', lw=2.2, alpha=0.5, label='actual')
+    ax.plot(skt.t, skt.s[:, 2], 'C3', lw=1, label='SKT')
+    ax.plot(obs.t_wrench, obs.wrench[:, 2], '.', ms=1.5, alpha=0.3, color='0.4',
+            label='raw (biased)')
+    ax.plot(run.cond.wrench.t, run.cond.wrench.filtered[:, 2], 'C0', lw=0.8,
+            label='filtered observation')
+    ax.set(title='(D) Ground moment about the foot COM', ylabel='moment (N m)')
+    ax.legend(fontsize=7)
+    for a in axes.ravel():
+        _liftoff(a, truth.liftoff_s)
+        a.set_xlabel('time (s)')
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_fig4(truth: Truth, run: object, path: str | Path, f0: np.ndarray) -> Path:
+    """Paper Fig. 4: excitations and normalised muscle forces, NMT vs parameter optimisation."""
+    s2 = run.stage2
+    fig, axes = plt.subplots(3, 3, figsize=(12, 8), sharex=True, constrained_layout=True)
+    for i, (ax, label) in enumerate(zip(axes.ravel(), MUSCLE_LABELS)):
+        ax.plot(truth.t, truth.u[:, i], 'k', lw=1, label='PO excitation')
+        ax.plot(truth.t, truth.f[:, i] / f0[i], 'k--', lw=1, label='PO force / F0')
+        ax.plot(s2.t, s2.u[:, i], color='0.55', lw=2.2, alpha=0.8, label='NMT excitation')
+        ax.plot(s2.t, s2.f[:, i] / f0[i], '--', color='0.55', lw=2.2, alpha=0.8,
+                label='NMT force / F0')
+        _liftoff(ax, truth.liftoff_s)
+        ax.set_title(label)
+        ax.set_ylim(-0.05, 1.15)
+    axes[0, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel('time (s)')
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
+              path: str | Path) -> Path:
+    """Paper Fig. 5: NMT torques, and the NMT simulation's angles and ground forces."""
+    s2, sim, skt = run.stage2, run.nmt_sim, run.skt
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    ax = axes[0]
+    for j, label in enumerate(JOINT_LABELS):
+        line, = ax.plot(truth.t, truth.tau[:, j], lw=2.2, alpha=0.5, label=f'{label} actual')
+        ax.plot(s2.t, s2.tau_muscle[:, j], '-', lw=1, color=line.get_color(),
+                label=f'{label} NMT')
+        ax.plot(skt.t, skt.tau[:, j], ':', lw=1, color=line.get_color(), label=f'{label} SKT')
+    ax.set(title='(A) Joint torques', ylabel='torque (N m)')
+    ax.legend(fontsize=7, ncol=3)
+    ax = axes[1]
+    for j, label in enumerate(SEGMENT_LABELS):
+        line, = ax.plot(truth.t, np.degrees(truth.q[:, j]), lw=2.2, alpha=0.5, label=label)
+        ax.plot(sim.t, np.degrees(sim.x[:, j]), '-', lw=1, color=line.get_color())
+        ax.plot(obs.t_angles, np.degrees(obs.angles[:, j]), 'o', ms=3, mfc='none',
+                color=line.get_color())
+    ax.set(title='(B) Segment angles: actual (thick), NMT (thin), observed (o)',
+           ylabel='angle (deg)')
+    ax.legend(fontsize=7)
+    ax = axes[2]
+    s_sim, = model.batch(model.contact_outputs, sim.x[:, :6], sim.x[:, 6:12], sim.x0)
+    for k, label in ((0, 'fore-aft'), (1, 'vertical')):
+        line, = ax.plot(truth.t, truth.s[:, k], lw=2.2, alpha=0.5, label=f'{label} actual')
+        ax.plot(sim.t, s_sim[:, k], '-', lw=1, color=line.get_color(), label=f'{label} NMT')
+    ax.set(title='(C) Ground forces', ylabel='force (N)')
+    ax.legend(fontsize=7)
+    for a in axes:
+        _liftoff(a, truth.liftoff_s)
+        a.set_xlabel('time (s)')
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

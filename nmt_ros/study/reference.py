@@ -375,3 +375,33 @@ def make_reference(model: JumperModel, settings: POSettings = POSettings(), star
     sim.liftoff_s = probe.liftoff_s
     return ReferenceJump(po=po, starts=results, coarse=best, simulation=sim, checks=checks,
                          cpu_s=cpu, wall_s=wall)
+
+
+def simulate_musculoskeletal_rk4(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
+                                 excitation: callable, t_end: float, rate_hz: float = 1080.0,
+                                 substeps: int = 4, liftoff_force: float = 1.0) -> Simulation:
+    """Eq. 1 + Eq. 8 with fixed-step RK4, recorded at ``rate_hz`` (fast; for piecewise inputs).
+
+    The excitation is evaluated at each step's start and held over the step (zero-order hold
+    on the integration grid), which suits the piecewise-constant Stage-2 excitations.
+    """
+    from nmt_ros.model.integrate import rk4_integrate
+    from nmt_ros.tracking.skeletal_tracker import liftoff_time
+
+    fode = model.musculoskeletal_ode
+    h = 1.0 / (rate_hz * substeps)
+    held = {'t': None, 'u': None}
+
+    def rhs(t: float, y: np.ndarray) -> np.ndarray:
+        t_step = np.floor(t / h + 1e-9) * h
+        if held['t'] != t_step:
+            held['t'], held['u'] = t_step, excitation(t_step)
+        return np.asarray(fode(y, held['u'], x0)).ravel()
+
+    n = int(np.floor(t_end * rate_hz + 1e-9)) * substeps
+    t, y, _ = rk4_integrate(rhs, x_init, 0.0, h, n, substeps)
+    s, = model.batch(model.contact_outputs, y[:, :6], y[:, 6:12], x0)
+    u = np.array([excitation(ti) for ti in t])
+    return Simulation(t=t, x=y, u=u, x0=np.asarray(x0, dtype=float),
+                      liftoff_s=liftoff_time(t, s[:, 1], liftoff_force), success=True,
+                      message='RK4')

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from nmt_ros.model.integrate import rk4_integrate
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.conditioning import ConditionedObservations
 from nmt_ros.tracking.skeletal_tracker import SKTState, liftoff_time
@@ -96,27 +97,14 @@ def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
         return np.concatenate([y[6:], np.asarray(fd(y[:6], y[6:], tau_at(t), x0)).ravel()])
 
-    y = np.concatenate([initial.q, initial.qd])
-    n_steps = int(round(t_end / dt))
-    ts, ys = [0.0], [y.copy()]
-    status = 'completed'
-    for k in range(n_steps):
-        t = k * dt
-        k1 = rhs(t, y)
-        k2 = rhs(t + dt / 2, y + dt / 2 * k1)
-        k3 = rhs(t + dt / 2, y + dt / 2 * k2)
-        k4 = rhs(t + dt, y + dt * k3)
-        y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        if (k + 1) % substeps == 0:
-            ts.append((k + 1) * dt)
-            ys.append(y.copy())
-        if not np.isfinite(y).all() or np.degrees(np.abs(y[:4])).max() > max_angle_deg:
-            status = 'fell'
-            break
-    Y = np.array(ys)
+    def fell(_t: float, y: np.ndarray) -> bool:
+        return not np.isfinite(y).all() or np.degrees(np.abs(y[:4])).max() > max_angle_deg
+
+    ts, Y, stopped = rk4_integrate(rhs, np.concatenate([initial.q, initial.qd]), 0.0, dt,
+                                   int(round(t_end / dt)), substeps, stop=fell)
+    status = 'fell' if stopped else 'completed'
     s, = model.batch(model.contact_outputs, Y[:, :6], Y[:, 6:], x0)
-    result.sim_t, result.sim_q, result.sim_qd, result.sim_s = np.array(ts), Y[:, :6], \
-        Y[:, 6:], s
+    result.sim_t, result.sim_q, result.sim_qd, result.sim_s = ts, Y[:, :6], Y[:, 6:], s
     result.sim_liftoff_s = liftoff_time(result.sim_t, s[:, 1])
     result.sim_status = status
     return result

@@ -1,0 +1,85 @@
+"""``nmt track BAG --out DIR``: batch NMT (Stage 1, IVD, Stage 2, NMT simulation) on a bag.
+
+Writes ``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time) and,
+when the bag carries ``/truth/*``, ``DIR/metrics.json`` and the paper-style figures.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+import shutil
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bag', type=Path, help='bag folder (or .mcap) with the observations')
+    parser.add_argument('--out', required=True, type=Path, help='output directory')
+    parser.add_argument('--stage2-mode', choices=('full', 'windowed'), default='full',
+                        help="Stage 2 over the whole horizon (the paper) or receding windows")
+    parser.add_argument('--window', type=float, default=None,
+                        help='Stage 2 window length H in s (windowed mode)')
+    parser.add_argument('--no-figures', action='store_true')
+    parser.add_argument('--force', action='store_true', help='replace existing outputs')
+
+
+def _say(msg: str) -> None:
+    print(f'[nmt track] {msg}', flush=True)
+
+
+def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
+              figures: bool = True, say: callable = _say) -> dict | None:
+    """Run the NMT on ``bag``, write the outputs; returns the metrics (None without truth)."""
+    from nmt_ros.io.bags import bag_info
+    from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
+    from nmt_ros.model.jumper import default_model
+    from nmt_ros.study.pipeline import NMTSettings, run_nmt
+
+    model = default_model()
+    obs = read_observations(bag)
+    say(f'{bag}: {obs.t_angles.size} angle samples, {obs.t_wrench.size} wrench samples, '
+        f'{obs.t_wrench[-1]:.3f} s')
+    run = run_nmt(model, obs, NMTSettings(stage2_mode=stage2_mode, window_length_s=window),
+                  progress=say)
+    out.mkdir(parents=True, exist_ok=True)
+    write_estimates_bag(out / 'estimates', model, run, obs.info['epoch_ns'])
+    say(f'estimates: {out / "estimates"}')
+    if not has_truth(bag):
+        return None
+    from nmt_ros.study.metrics import compute_metrics
+
+    truth = read_truth(bag)
+    po = None
+    record = Path(bag) / 'reference.json'
+    if record.exists():
+        po = json.loads(record.read_text()).get('po')
+    metrics = compute_metrics(model, run, truth, po)
+    metrics['source_bag'] = str(bag)
+    metrics['custom_data'] = dict(bag_info(bag).custom_data or {})
+    (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
+    say(f'metrics: {out / "metrics.json"}')
+    if figures:
+        from nmt_ros.study.figures import plot_fig3, plot_fig4, plot_fig5
+
+        plot_fig3(truth, obs, run, out / 'fig3_skeletal_tracking.png')
+        if run.stage2 is not None:
+            plot_fig4(truth, run, out / 'fig4_muscles.png', model.p.muscles.f0)
+            plot_fig5(truth, obs, run, model, out / 'fig5_nmt.png')
+        say(f'figures: {out}/fig3_skeletal_tracking.png, fig4_muscles.png, fig5_nmt.png')
+    return metrics
+
+
+def run(args: argparse.Namespace) -> int:
+    est = args.out / 'estimates'
+    if est.exists():
+        if not args.force:
+            print(f'error: {est} exists (use --force to replace it)', file=sys.stderr)
+            return 2
+        shutil.rmtree(est)
+    metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
+                        figures=not args.no_figures)
+    if metrics:
+        from nmt_ros.study.report import summary_lines
+
+        print('\n'.join(summary_lines(metrics)))
+    return 0

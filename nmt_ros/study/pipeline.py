@@ -1,0 +1,119 @@
+"""The whole NMT method on one set of observations (Fig. 2B), plus the IVD baseline.
+
+observations -> conditioning -> Stage 1 (SKT: torques, tracked motion) -> Stage 2 (LQT:
+muscle forces, activations, excitations) -> NMT forward simulation (the full musculoskeletal
+model driven by the Stage-2 excitations, from the tracked initial state: the NMT jump);
+and observations -> IVD torques -> open-loop forward simulation (the baseline).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+
+from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.squat import static_activations
+from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
+from nmt_ros.study.trial import Observations
+from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
+from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
+from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, Stage2Result
+from nmt_ros.tracking.skeletal_tracker import (
+    SKTResult,
+    SKTSettings,
+    initial_state,
+    reference_arrays,
+    track,
+)
+
+
+@dataclass(frozen=True)
+class NMTSettings:
+    """Settings of a full NMT run (defaults: the paper's, with our documented choices)."""
+
+    conditioning: ConditioningSettings = ConditioningSettings()
+    skt: SKTSettings = SKTSettings()
+    stage2_mode: str = 'full'            # 'full' (the paper) | 'windowed'
+    window_length_s: float | None = None  # windowed mode: H (default from stage2.yaml)
+    rate_hz: float = 1080.0
+    stage2_margin_s: float = 0.01        # Stage 2 runs until Stage-1 lift-off + this
+    flight_s: float = 0.02               # the NMT simulation runs past its lift-off by this
+
+
+@dataclass
+class NMTRun:
+    """Everything one NMT run produced."""
+
+    cond: ConditionedObservations
+    skt: SKTResult
+    ivd: IVDResult
+    stage2: Stage2Result | None
+    nmt_sim: Simulation | None
+    a0: np.ndarray
+    cpu_s: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.skt.ok and self.stage2 is not None
+
+
+def joint_kinematics(model: JumperModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OpenSim joint angles, rates and accelerations [n, 3] (linear in q)."""
+    return tuple(model.batch(model.joint_angles, x)[0] for x in (q, qd, qdd))
+
+
+def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSettings(),
+            progress: callable | None = None) -> NMTRun:
+    """Stage 1, IVD, Stage 2 and the NMT simulation on ``obs``; CPU seconds per part."""
+    say = progress or (lambda _msg: None)
+    cpu: dict[str, float] = {}
+    c = time.process_time()
+    cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, settings.conditioning)
+    cpu['conditioning'] = time.process_time() - c
+
+    say('Stage 1: skeletal motion tracker')
+    skt = track(model, cond, settings.skt, settings.rate_hz)
+    cpu['stage1'] = skt.cpu_s + cpu['conditioning']
+    if not skt.ok:
+        say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
+            f'{skt.events[0]["t"]:.3f} s')
+
+    say('IVD baseline')
+    c = time.process_time()
+    init = initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt)
+    ivd = inverse_dynamics_baseline(model, cond, init, settings.rate_hz)
+    ivd = simulate_open_loop(model, ivd, init, settings.rate_hz)
+    cpu['ivd'] = time.process_time() - c
+
+    a0 = np.zeros(9)
+    stage2 = nmt_sim = None
+    if skt.ok:
+        say('Stage 2: neuromuscular tracker (LQT)')
+        c = time.process_time()
+        t_stop = (skt.liftoff_s if np.isfinite(skt.liftoff_s) else skt.t[-1])
+        keep = skt.t <= t_stop + settings.stage2_margin_s
+        th, thd, thdd = joint_kinematics(model, skt.q[keep], skt.qd[keep], skt.qdd[keep])
+        a0, _ = static_activations(model, skt.q[0], skt.tau[0])
+        tracker = NeuromuscularTracker(model)
+        stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
+                               mode=settings.stage2_mode,
+                               window_length=settings.window_length_s)
+        cpu['stage2'] = time.process_time() - c
+
+        say('NMT forward simulation (muscles driven by the Stage-2 excitations)')
+        c = time.process_time()
+        t_u, u = stage2.t, stage2.u
+
+        def excitation(t: float) -> np.ndarray:
+            i = min(max(int(np.searchsorted(t_u, t, side='right')) - 1, 0), len(t_u) - 1)
+            return u[i]
+
+        x_init = np.concatenate([skt.q[0], skt.qd[0], stage2.a[0]])
+        t_end = float(t_u[-1]) + settings.flight_s
+        nmt_sim = simulate_musculoskeletal_rk4(model, x_init, skt.x0, excitation, t_end,
+                                               settings.rate_hz)
+        cpu['nmt_simulation'] = time.process_time() - c
+    cpu['nmt_total'] = cpu['stage1'] + cpu.get('stage2', 0.0)
+    return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu)
