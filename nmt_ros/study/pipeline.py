@@ -95,7 +95,11 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         t_stop = (skt.liftoff_s if np.isfinite(skt.liftoff_s) else skt.t[-1])
         keep = skt.t <= t_stop + settings.stage2_margin_s
         th, thd, thdd = joint_kinematics(model, skt.q[keep], skt.qd[keep], skt.qdd[keep])
-        a0, _ = static_activations(model, skt.q[0], skt.tau[0])
+        # Initial activations: those that hold the tracked initial posture at rest (the
+        # torques of Eq. 1 with qd = qdd = 0 and the springs' wrench), min sum a^2.
+        s0 = model.call(model.contact_outputs, skt.q[0], np.zeros(6), skt.x0)[0]
+        tau0, _ = model.inverse_dynamics(skt.q[0], np.zeros(6), np.zeros(6), s0[None])
+        a0, _ = static_activations(model, skt.q[0], tau0[0])
         tracker = NeuromuscularTracker(model)
         stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
                                mode=settings.stage2_mode,

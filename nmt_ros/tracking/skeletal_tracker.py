@@ -50,6 +50,10 @@ class SKTSettings:
     force_scale_bw: float = 0.02
     moment_lever_m: float = 0.17
     bias_rate: float = 20.0          # kappa (1/s) of the moment-bias estimate; 0 = off
+    # Tikhonov rows sqrt(w) tau / torque_scale added to Eq. 5: keeps the torques determined
+    # when the contact rows vanish (flight) and the foot angle's weight is tiny. 0 = off.
+    torque_regularization: float = 0.0
+    torque_scale_nm: float = 100.0
     jacobians: str = 'exact'         # 'exact' | 'numerical'
     fd_step: float = 1e-6            # central-difference step for numerical Jacobians
     substeps: int = 2                # RK4 steps per force-plate sample (h = 0.46 ms)
@@ -57,6 +61,7 @@ class SKTSettings:
     # Loss-of-control detection.
     max_angle_error_deg: float = 20.0    # shank, thigh or HAT vs the filtered observation
     max_force_error_bw: float = 1.5      # vertical force vs the filtered observation
+    max_torque_nm: float = 2000.0        # any joint (beyond human capacity: diverging)
     min_conditioning: float = 1e-10      # smallest/largest eigenvalue of B'WB
 
     def with_(self, **kw: object) -> SKTSettings:
@@ -122,7 +127,7 @@ class SkeletalTrackerRecipe:
         row_w = ca.sqrt(ca.DM(st.weights)) / (order_gain * sigma)
         Bw = B * ca.repmat(row_w, 1, 3)
         rw = (v - A) * row_w
-        normal = Bw.T @ Bw
+        normal = Bw.T @ Bw + (st.torque_regularization / st.torque_scale_nm ** 2) * ca.DM.eye(3)
         tau = ca.solve(normal, Bw.T @ rw)
         qdd = qdd_free + qdd_gain @ tau
         residual = Bw @ tau - rw                     # unexplained demand, per row
@@ -306,6 +311,8 @@ class SkeletalTracker:
              f'vertical ground force error above {st.max_force_error_bw:g} BW'),
             (out['conditioning'] < st.min_conditioning,
              'the least-squares system lost rank (torques no longer determined)'),
+            (np.abs(out['tau']).max(axis=1) > st.max_torque_nm,
+             f'joint torque above {st.max_torque_nm:g} N m (the tracker is diverging)'),
         ]
         for mask, reason in checks:
             if mask.any():
