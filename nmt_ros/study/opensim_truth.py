@@ -6,9 +6,14 @@
   for OpenSim's states-based tools and the GUI's motion loading.
 * ``truth_grf.mot`` / ``truth_grf.xml``: the ground reaction (force, centre of pressure on the
   ground line, free torque; exact) and the ExternalLoads applying it to the ``foot`` body.
+
+The files start ``pre_s`` (50 ms) before t = 0 with the static squat, which the model holds
+exactly (it is an equilibrium): OpenSim differentiates coordinates with splines whose end
+conditions would otherwise corrupt the accelerations at the start of the push.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +39,29 @@ def opensim_coordinates(model: JumperModel, q: np.ndarray) -> np.ndarray:
     return np.column_stack([q[:, 0], q[:, 4], q[:, 5], theta])
 
 
-def write_opensim_truth(folder: str | Path, model: JumperModel, truth: Truth) -> list[Path]:
+def _with_quiet_start(truth: Truth, pre_s: float) -> Truth:
+    """The truth extended backwards by ``pre_s`` of its (static) initial state."""
+    if pre_s <= 0:
+        return truth
+    dt = float(truth.t[1] - truth.t[0])
+    n = int(round(pre_s / dt))
+    if np.abs(truth.qd[0]).max() > 1e-9:
+        raise ValueError('the truth does not start at rest: no quiet period can be prepended')
+
+    def pad(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.repeat(x[:1], n, axis=0), x])
+
+    return replace(truth, t=np.concatenate([truth.t[0] - dt * np.arange(n, 0, -1), truth.t]),
+                   q=pad(truth.q), qd=pad(truth.qd), qdd=pad(np.zeros_like(truth.qdd)),
+                   a=pad(truth.a), u=pad(truth.u), f=pad(truth.f), tau=pad(truth.tau),
+                   s=pad(truth.s), point_forces=pad(truth.point_forces))
+
+
+def write_opensim_truth(folder: str | Path, model: JumperModel, truth: Truth,
+                        pre_s: float = 0.05) -> list[Path]:
     """Write the four files into ``folder``; returns their paths."""
     folder = Path(folder)
+    truth = _with_quiet_start(truth, pre_s)
     coords = opensim_coordinates(model, truth.q)
     speeds = opensim_coordinates(model, truth.qd)
     speeds[:, 1:3] = truth.qd[:, 4:6]
