@@ -136,6 +136,11 @@ class FixedLagConditioner:
         self._t: list[list[float]] = [[], []]
         self._y: list[list[np.ndarray]] = [[], []]
         self._cache: tuple[float, ConditionedObservations] | None = None
+        self.closed = False
+
+    def close(self) -> None:
+        """End of the data: every instant up to the last sample becomes final."""
+        self.closed = True
 
     def add_angles(self, t: float, theta: np.ndarray) -> None:
         self._add(0, t, theta)
@@ -144,6 +149,8 @@ class FixedLagConditioner:
         self._add(1, t, s)
 
     def _add(self, k: int, t: float, y: np.ndarray) -> None:
+        if self.closed:
+            raise ValueError('the conditioner was closed (end of data); start a new one')
         if self._t[k] and t <= self._t[k][-1]:
             raise ValueError(f'sample at t = {t:.6f} s is not after the previous one '
                              f'({self._t[k][-1]:.6f} s)')
@@ -159,7 +166,8 @@ class FixedLagConditioner:
         """Latest instant whose estimate is final (-inf before enough data)."""
         if len(self._t[0]) < 6 or len(self._t[1]) < 6:
             return -np.inf
-        return min(self._t[0][-1], self._t[1][-1]) - self.settings.lookahead_s
+        last = min(self._t[0][-1], self._t[1][-1])
+        return last if self.closed else last - self.settings.lookahead_s
 
     def _conditioned(self) -> ConditionedObservations:
         key = (self._t[0][-1], self._t[1][-1])

@@ -53,11 +53,15 @@ class SKTSettings:
     # Tikhonov rows sqrt(w) tau / torque_scale added to Eq. 5: keeps the torques determined
     # when the contact rows vanish (flight) and the foot angle's weight is tiny. 0 = off.
     torque_regularization: float = 0.0
+    normalize_rows: bool = True      # False: Table 1 weights on raw rows (rad/s^2, N/s, N m/s)
     torque_scale_nm: float = 100.0
     jacobians: str = 'exact'         # 'exact' | 'numerical'
     fd_step: float = 1e-6            # central-difference step for numerical Jacobians
     substeps: int = 2                # RK4 steps per force-plate sample (h = 0.46 ms)
     static_start: bool = True        # the trial starts at rest (the paper's static squat)
+    # Lift-off of the tracked model: its vertical force falls below the force plate's noise
+    # level (the tracker follows the noisy ~0 N observations in flight with small contact).
+    liftoff_force_bw: float = 0.02
     # Loss-of-control detection.
     max_angle_error_deg: float = 20.0    # shank, thigh or HAT vs the filtered observation
     max_force_error_bw: float = 1.5      # vertical force vs the filtered observation
@@ -124,7 +128,9 @@ class SkeletalTrackerRecipe:
         sigma = ca.DM(list(angle_sigma) + [st.force_scale_bw * bw] * 2
                       + [st.force_scale_bw * bw * st.moment_lever_m])
         order_gain = ca.vertcat(lam[0:4] ** 2, lam[4:7])
-        row_w = ca.sqrt(ca.DM(st.weights)) / (order_gain * sigma)
+        row_w = ca.sqrt(ca.DM(st.weights))
+        if st.normalize_rows:
+            row_w = row_w / (order_gain * sigma)
         Bw = B * ca.repmat(row_w, 1, 3)
         rw = (v - A) * row_w
         normal = Bw.T @ Bw + (st.torque_regularization / st.torque_scale_nm ** 2) * ca.DM.eye(3)
@@ -173,6 +179,46 @@ class SKTResult:
         return self.status == 'ok'
 
 
+def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Function:
+    """Residual (and its Jacobian) of the static-start posture problem, z = [th1..th4, dr2].
+
+    Rows: whole-body static balance (rigid rotation about the ankle and vertical translation:
+    the joint torques cancel in these combinations), weighted heavily; the angles' deviation
+    from the observed ones and the moment's from the observed moment, normalised and weighted
+    as the rows of Eq. 5. The anchors sit under the contact points (springs unstretched).
+    """
+    key = ('static_residual', st.weights, st.angle_scale_deg, st.force_scale_bw,
+           st.moment_lever_m)
+    cache = model.__dict__.setdefault('_skt_cache', {})
+    if key in cache:
+        return cache[key]
+    z = ca.SX.sym('z', 5)
+    th_obs = ca.SX.sym('theta_obs', 4)
+    m_obs = ca.SX.sym('moment_obs')
+    ankle_h = -float(model.p.contact.points[:, 1].min())
+    q = ca.vertcat(z[0:4], 0.0, ankle_h + z[4])
+    zero = ca.DM.zeros(6)
+    x0 = model.positions(q)[4][0, :].T
+    gen = model.inertial_gravity(q, zero) + model.contact_generalized(q, zero, x0)
+    s = model.contact_outputs(q, zero, x0)
+    bw = model.p.body_weight
+    w = np.sqrt(np.asarray(st.weights))
+    balance = ca.vertcat(ca.sum1(gen[0:4]) / (0.01 * bw), gen[5] / (0.001 * bw)) * 1e3
+    angles = ca.DM(w[:4] / np.radians(np.broadcast_to(st.angle_scale_deg, (4,)))) * (
+        z[0:4] - th_obs)
+    moment = w[6] * (s[2] - m_obs) / (st.force_scale_bw * bw * st.moment_lever_m)
+    r = ca.vertcat(balance, angles, moment)
+    cache[key] = ca.Function('skt_static_residual', [z, th_obs, m_obs],
+                             [r, ca.jacobian(r, z)])
+    return cache[key]
+
+
+def _flat_foot_angle(model: JumperModel) -> float:
+    """Foot angle [rad] at which its heel and toe points are at the same height."""
+    (hx, hy), (tx, ty) = model.p.contact.points
+    return float(-np.arctan2(ty - hy, tx - hx))
+
+
 def initial_state(model: JumperModel, ref0: np.ndarray,
                   settings: SKTSettings = SKTSettings()) -> SKTState:
     """Initial state of the tracked model from the observations at t = 0.
@@ -188,32 +234,30 @@ def initial_state(model: JumperModel, ref0: np.ndarray,
 
     st = settings
     ankle_h = -float(model.p.contact.points[:, 1].min())
-    bw = model.p.body_weight
     zero = np.zeros(6)
 
     def pose(z: np.ndarray) -> np.ndarray:
         return np.r_[z[:4], 0.0, ankle_h + z[4]]
 
     if st.static_start:
-        w = np.sqrt(np.asarray(st.weights))
-        sig_m = st.force_scale_bw * bw * st.moment_lever_m
+        fn = _static_residual_function(model, st)
+        args = (ref0[0:4], ref0[14])
 
         def residual(z: np.ndarray) -> np.ndarray:
-            q = pose(z)
-            x0 = model.anchors_at(q)
-            gen = (model.call(model.inertial_gravity, q, zero)[0]
-                   + model.call(model.contact_generalized, q, zero, x0)[0])
-            s = model.call(model.contact_outputs, q, zero, x0)[0]
-            # Whole-body static balance: rigid rotation about the ankle and vertical
-            # translation (joint torques cancel in these combinations), weighted heavily.
-            balance = np.array([gen[:4].sum() / (0.01 * bw), gen[5] / (0.001 * bw)])
-            angles = w[:4] * (z[:4] - ref0[0:4]) / np.radians(
-                np.broadcast_to(st.angle_scale_deg, (4,)))
-            moment = w[6] * (s[2] - ref0[14]) / sig_m
-            return np.r_[balance * 1e3, angles, moment]
+            return np.asarray(fn(z, *args)[0]).ravel()
 
-        z0 = np.r_[ref0[0:4], -0.002]
-        sol = least_squares(residual, z0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        def jacobian(z: np.ndarray) -> np.ndarray:
+            return np.asarray(fn(z, *args)[1])
+
+        # Bounds: each angle within 15 deg of its observation, the ankle within 5 cm of its
+        # unloaded height. Start from the foot flat on both contact points (the observed foot
+        # angle is the noisiest channel; from it a heel-up local minimum is often found).
+        centre = np.r_[ref0[0:4], 0.0]
+        span = np.r_[np.full(4, np.radians(15.0)), 0.05]
+        flat = _flat_foot_angle(model)
+        z0 = np.clip(np.r_[flat, ref0[1:4], -0.002], centre - span, centre + span)
+        sol = least_squares(residual, z0, jac=jacobian, bounds=(centre - span, centre + span),
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
         q = pose(sol.x)
         return SKTState(t=0.0, q=q, qd=zero.copy(), b=0.0, x0=model.anchors_at(q))
 
@@ -291,9 +335,13 @@ class SkeletalTracker:
         m = self.model
         Qdot, _, tau, y, resid, normal = m.batch(self.recipe.closed_loop, Qs[:, :6], Qs[:, 6:],
                                                   bs[:, None], refs, x0)
-        eig = np.linalg.eigvalsh(normal)
+        finite = np.isfinite(normal).all(axis=(1, 2))
+        cond = np.full(len(outs), np.nan)
+        if finite.any():
+            eig = np.linalg.eigvalsh(normal[finite])
+            cond[finite] = eig[:, 0] / eig[:, -1]
         return {'Q': Qs, 'qdd': Qdot[:, 6:], 'tau': tau, 'y': y, 'b': bs, 'ref': refs,
-                'residual': resid, 'conditioning': eig[:, 0] / eig[:, -1]}
+                'residual': resid, 'conditioning': cond}
 
     def check_control(self, out: dict, t: np.ndarray) -> list[dict]:
         """Loss-of-control events (first per kind) in a block of outputs."""
@@ -309,7 +357,7 @@ class SkeletalTracker:
              f'segment angle error above {st.max_angle_error_deg:g} deg'),
             (err_force > st.max_force_error_bw,
              f'vertical ground force error above {st.max_force_error_bw:g} BW'),
-            (out['conditioning'] < st.min_conditioning,
+            (~(out['conditioning'] >= st.min_conditioning),
              'the least-squares system lost rank (torques no longer determined)'),
             (np.abs(out['tau']).max(axis=1) > st.max_torque_nm,
              f'joint torque above {st.max_torque_nm:g} N m (the tracker is diverging)'),
@@ -360,7 +408,14 @@ class Stage1Stream:
             ref0 = reference_arrays(self.conditioner, np.array([0.0]))[0]
             self.state = initial_state(self.model, ref0, self.tracker.settings)
             q0 = np.concatenate([self.state.q, self.state.qd])
-            chunks.append(self.tracker._outputs([(q0, 0.0, ref0)], self.state.x0))
+            first = self.tracker._outputs([(q0, 0.0, ref0)], self.state.x0)
+            ev = self.tracker.check_control(first, np.array([0.0]))
+            if ev:
+                self.events = [{**e, 'reason': 'no consistent initial state: ' + e['reason']}
+                               for e in ev]
+                self.status = 'lost_control'
+                return None
+            chunks.append(first)
             times.append(np.array([0.0]))
         n_final = int(np.floor(final * self.rate_hz + 1e-9))
         while self.done < n_final and self.status == 'ok':
@@ -370,12 +425,16 @@ class Stage1Stream:
             self.state, out = self.tracker.advance(self.state, refs)
             t_blk = (self.done + 1 + np.arange(n)) / self.rate_hz
             self.done += n
-            chunks.append(out)
-            times.append(t_blk)
             ev = self.tracker.check_control(out, t_blk)
             if ev:
                 self.events = ev
                 self.status = 'lost_control'
+                # Keep only the samples before the first event: the rest has diverged.
+                keep = t_blk < min(e['t'] for e in ev) - 1e-12
+                out = {k: v[keep] for k, v in out.items()}
+                t_blk = t_blk[keep]
+            chunks.append(out)
+            times.append(t_blk)
         if not chunks:
             return None
         cat = {k: np.concatenate([c[k] for c in chunks])
@@ -395,11 +454,18 @@ def track(model: JumperModel, cond: ConditionedObservations,
     c0 = time.process_time()
     stream = Stage1Stream(model, cond, settings, rate_hz, block)
     cat = stream.poll(t_end)
+    if cat is None:  # lost at the start: an empty result that says why
+        empty = np.zeros((0, 6))
+        return SKTResult(t=np.zeros(0), q=empty, qd=empty, qdd=empty, tau=np.zeros((0, 3)),
+                         s=np.zeros((0, 3)), bias=np.zeros(0), residual=np.zeros((0, 7)),
+                         x0=np.zeros(2), status=stream.status, events=stream.events,
+                         cpu_s=time.process_time() - c0)
     res = SKTResult(t=cat['t'], q=cat['Q'][:, :6], qd=cat['Q'][:, 6:], qdd=cat['qdd'],
                     tau=cat['tau'], s=cat['y'][:, 4:7], bias=cat['b'],
                     residual=cat['residual'], x0=stream.state.x0, status=stream.status,
                     events=stream.events, cpu_s=time.process_time() - c0)
-    res.liftoff_s = liftoff_time(res.t, res.s[:, 1])
+    res.liftoff_s = liftoff_time(res.t, res.s[:, 1],
+                                 settings.liftoff_force_bw * model.p.body_weight)
     return res
 
 
