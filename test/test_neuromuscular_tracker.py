@@ -1,6 +1,9 @@
 """Stage 2 (neuromuscular tracker) on references whose truth is known."""
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -8,11 +11,20 @@ from scipy.integrate import solve_ivp
 from nmt_ros.model.jumper import default_model
 from nmt_ros.tracking import neuromuscular_tracker as nt
 from nmt_ros.tracking import riccati as rc
+from nmt_ros.tracking.activation_init import rest_activations
+
+JUMP_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
 
 @pytest.fixture(scope='module')
 def tracker() -> nt.NeuromuscularTracker:
     return nt.NeuromuscularTracker()
+
+
+@pytest.fixture(scope='module')
+def clip_tracker(tracker) -> nt.NeuromuscularTracker:
+    """The paper's Stage 2: unconstrained LQT, excitations clipped to [0, 1]."""
+    return nt.NeuromuscularTracker(tracker.model, nt.load_stage2_settings(saturation='clip'))
 
 
 @pytest.fixture(scope='module')
@@ -34,6 +46,9 @@ def _inputs(s: nt.SyntheticReference) -> tuple[np.ndarray, ...]:
 def test_settings_weights_mapped_by_name(tracker):
     st = nt.load_stage2_settings()
     assert (st.k_q, st.k_r, st.k_p) == (1500.0, 1000.0, 0.0)
+    assert st.saturation == 'plan' and tracker.constrained
+    with pytest.raises(ValueError):
+        nt.load_stage2_settings(saturation='ignore')
     assert 'Appendix B' in st.source
     names = tracker.names
     assert names == ('gmax', 'ilpso', 'hams', 'bfsh', 'rf', 'vas', 'gas', 'sol', 'ta')
@@ -119,7 +134,7 @@ def test_full_horizon_tracks_the_torques(full, synth):
     assert np.all((full.u >= 0) & (full.u <= 1)) and np.all((full.a >= 0) & (full.a <= 1))
     np.testing.assert_allclose(full.tau_muscle, np.einsum('npm,nm->np',
                                                           _c_matrix(synth), full.f))
-    assert set(full.cpu_s) == {'prepare', 'riccati', 'forward'}
+    assert set(full.cpu_s) == {'prepare', 'plan', 'riccati', 'forward'}
 
 
 def _c_matrix(s: nt.SyntheticReference) -> np.ndarray:
@@ -128,11 +143,12 @@ def _c_matrix(s: nt.SyntheticReference) -> np.ndarray:
     return C.reshape(-1, 3, 9)
 
 
-def test_w_symmetric_positive_semidefinite(full):
-    W = full.W
-    assert np.max(np.abs(W - np.swapaxes(W, 1, 2))) <= 1e-12 * np.abs(W).max()
-    eig = np.linalg.eigvalsh(W)
-    assert eig.min() >= -1e-9 * eig.max()
+def test_w_symmetric_positive_semidefinite(full, clip_tracker, synth):
+    paper = clip_tracker.track(*_inputs(synth), synth.a_true[0])
+    for W in (full.W, paper.W):
+        assert np.max(np.abs(W - np.swapaxes(W, 1, 2))) <= 1e-12 * np.abs(W).max()
+        eig = np.linalg.eigvalsh(W)
+        assert eig.min() >= -1e-9 * eig.max()
 
 
 def test_coarse_input_grid_is_refined_and_agrees(tracker, full):
@@ -158,8 +174,10 @@ def test_windowed_matches_full_horizon(tracker, synth, full):
 
 
 @pytest.mark.parametrize('dt', [1e-3, 1 / 120])
-def test_streaming_equals_batch_windowed(tracker, dt):
+@pytest.mark.parametrize('saturation', ['plan', 'clip'])
+def test_streaming_equals_batch_windowed(tracker, clip_tracker, dt, saturation):
     """``push`` fed uneven chunks of samples == the batch windowed mode (also with substeps)."""
+    tracker = tracker if saturation == 'plan' else clip_tracker
     synth = nt.synthetic_reference(dt=dt)
     kw = dict(window_length=0.03, window_stride=0.002)
     batch = tracker.track(*_inputs(synth), synth.a_true[0], mode='windowed', **kw)
@@ -186,15 +204,21 @@ def test_streaming_equals_batch_windowed(tracker, dt):
 
 
 # ---------------------------------------------------------------------------- saturation
-def test_saturation_is_reported(tracker, synth, full):
+def _collapse(synth: nt.SyntheticReference) -> np.ndarray:
     """The extensor torques collapse in 3 ms: faster than deactivation allows (tau 60 ms)."""
     drop = np.clip((synth.t - 0.12) / 0.003, 0.0, 1.0)
-    tau = synth.tau_ref * (1 - 0.9 * drop)[:, None]
-    res = tracker.track(synth.t, tau, synth.theta, synth.theta_dot, synth.theta_ddot,
-                        synth.a_true[0])
-    rep, base = res.saturation, full.saturation
-    assert rep.any
-    ext = [tracker.names.index(n) for n in ('gmax', 'vas', 'sol')]
+    return synth.tau_ref * (1 - 0.9 * drop)[:, None]
+
+
+def test_saturation_is_reported_paper_mode(clip_tracker, synth):
+    """'clip' (the paper): the LQT does not know the bounds; Eq. 9 is clipped and reported."""
+    s = synth
+    base = clip_tracker.track(*_inputs(s), s.a_true[0]).saturation
+    tau = _collapse(synth)
+    res = clip_tracker.track(s.t, tau, s.theta, s.theta_dot, s.theta_ddot, s.a_true[0])
+    rep = res.saturation
+    assert rep.any and res.saturation_mode == 'clip' and not rep.fraction_planned.any()
+    ext = [clip_tracker.names.index(n) for n in ('gmax', 'vas', 'sol')]
     assert np.all(rep.fraction_low[ext] > base.fraction_low[ext])
     assert rep.shortfall_integral.sum() > 3 * base.shortfall_integral.sum()
     after = (synth.t > 0.121) & (synth.t < 0.13)
@@ -204,7 +228,32 @@ def test_saturation_is_reported(tracker, synth, full):
     late = synth.t > 0.2
     err = np.abs(res.tracking_error[late]).max(axis=0) / np.abs(tau).max(axis=0)
     assert np.all(err < 0.1), err
-    assert set(rep.summary()) == set(tracker.names)
+    assert set(rep.summary()) == set(clip_tracker.names)
+
+
+def test_saturation_is_planned(tracker, clip_tracker, synth):
+    """'plan': the bounds are in the problem - the extensors switch off (u = 0) before the
+    collapse, as the plan foresaw, and the torque error is far smaller than the paper's."""
+    s = synth
+    tau = _collapse(synth)
+    res = tracker.track(s.t, tau, s.theta, s.theta_dot, s.theta_ddot, s.a_true[0])
+    paper = clip_tracker.track(s.t, tau, s.theta, s.theta_dot, s.theta_ddot, s.a_true[0])
+    ext = [tracker.names.index(n) for n in ('gmax', 'vas', 'sol')]
+    rep = res.saturation
+    assert res.saturation_mode == 'plan' and rep.fraction_planned[ext].min() > 0
+    late = synth.t > 0.05
+
+    def switch_off(r: nt.Stage2Result) -> np.ndarray:
+        return synth.t[late][np.argmax(r.u[late][:, ext] == 0.0, axis=0)]
+
+    assert np.all(switch_off(res) < switch_off(paper))       # deactivation starts earlier
+    assert np.all(switch_off(res) < 0.12)
+    window = (synth.t > 0.1) & (synth.t < 0.2)
+    err = np.sqrt(np.mean(res.tracking_error[window] ** 2, axis=0))
+    err_paper = np.sqrt(np.mean(paper.tracking_error[window] ** 2, axis=0))
+    assert np.all(err < 0.6 * err_paper), (err, err_paper)
+    assert np.all((res.u >= 0) & (res.u <= 1))
+    assert rep.shortfall_integral.sum() < 0.05 * paper.saturation.shortfall_integral.sum()
 
 
 # ---------------------------------------------------------------------------- optimality
@@ -241,3 +290,103 @@ def test_lqt_solution_is_optimal_on_the_linear_system(tracker, synth):
             d_eta = amp * scale * np.sin(2 * np.pi * freq * tt + phase)
             assert cost(eta + d_eta) > j0
             assert cost(eta - d_eta) > j0
+
+
+# ---------------------------------------------------------------------------- reference jump
+@pytest.fixture(scope='module')
+def jump(tracker) -> dict:
+    """The shipped reference jump: its true joint torques and kinematics as Stage-2 input.
+
+    theta_ddot from the model's own dynamics at the true state (not finite differences).
+    """
+    from nmt_ros.io.trial_bag import read_truth
+
+    if not JUMP_BAG.exists():
+        pytest.skip('bags/reference_jump not present')
+    tr = read_truth(JUMP_BAG)
+    model = tracker.model
+    theta, = model.batch(model.joint_angles, tr.q)
+    x = np.hstack([tr.q, tr.qd, tr.a])
+    xdot, = model.batch(model.musculoskeletal_ode, x, tr.u, np.tile(tr.x0, (tr.t.size, 1)))
+    # joint angles are linear in q: theta = J q
+    J = np.column_stack([model.call(model.joint_angles, e)[0] for e in np.eye(6)])
+    with open(JUMP_BAG / 'reference.json') as fh:
+        actual = json.load(fh)['actual']
+    return {'truth': tr, 'inputs': (tr.t, tr.tau, theta, tr.qd @ J.T, xdot[:, 6:12] @ J.T),
+            'contact': tr.t <= tr.liftoff_s, 'height_m': actual['jump_height_m']}
+
+
+@pytest.fixture(scope='module')
+def jump_full(tracker, jump) -> nt.Stage2Result:
+    return tracker.track(*jump['inputs'], jump['truth'].a[0])
+
+
+def _contact_rms_relative(res: nt.Stage2Result, contact: np.ndarray) -> np.ndarray:
+    err = res.tracking_error[contact]
+    return np.sqrt(np.mean(err ** 2, axis=0)) / np.abs(res.tau_ref[contact]).max(axis=0)
+
+
+def test_reference_jump_full_horizon_tracks_true_torques(tracker, clip_tracker, jump,
+                                                         jump_full):
+    """Max-height jump (prime movers at u = 1 much of the push-off): < 3 % of each joint's
+    peak over the contact phase; the paper's clipped LQT misses that by far."""
+    res, tr, contact = jump_full, jump['truth'], jump['contact']
+    rel = _contact_rms_relative(res, contact)
+    assert np.all(rel < 0.03), rel
+    assert np.all((res.u >= 0) & (res.u <= 1)) and np.all((res.a >= 0) & (res.a <= 1))
+    rep = res.saturation
+    for name in ('gmax', 'hams', 'vas', 'sol'):            # saturated, and planned so
+        j = tracker.names.index(name)
+        assert rep.fraction_high[j] > 0.3 and rep.fraction_planned[j] > 0.3
+    assert rep.shortfall_integral.max() < 1.0               # nothing the plan did not foresee
+    assert len(res.plan_iterations) == 1 and res.plan_iterations[0] < 40
+    # forces: the effort criterion shares the load differently from the jump's optimiser
+    # (RF, GAS), but every muscle stays within 8 % F0 of the truth
+    d = np.sqrt(np.mean((res.f - tr.f)[contact] ** 2, axis=0)) / tracker.f0
+    assert d.max() < 0.08, d
+    paper = clip_tracker.track(*jump['inputs'], tr.a[0])
+    assert _contact_rms_relative(paper, contact).max() > 0.1
+
+
+def test_reference_jump_windowed_matches_full_horizon(tracker, jump, jump_full):
+    """The default window (H <= 100 ms, stride one sample) within 2 % F0 of the full horizon."""
+    H = tracker.settings.window_length
+    assert H <= 0.1
+    res = tracker.track(*jump['inputs'], jump['truth'].a[0], mode='windowed')
+    d = np.sqrt(np.mean((res.f - jump_full.f) ** 2, axis=0)) / tracker.f0
+    assert d.max() < 0.02, d
+    assert np.all(_contact_rms_relative(res, jump['contact']) < 0.03)
+    assert res.window_length == pytest.approx(H, abs=1e-3)
+    assert len(res.plan_iterations) == res.t.size - 1
+
+
+def test_reference_jump_nmt_height(tracker, jump, jump_full):
+    """The skeleton driven by the Stage-2 excitations jumps within 2 % of the actual height."""
+    from nmt_ros.study.reference import simulate_musculoskeletal_rk4
+
+    model, tr, res = tracker.model, jump['truth'], jump_full
+
+    def excitation(t: float) -> np.ndarray:
+        i = int(np.searchsorted(res.t, t + 1e-12, side='right')) - 1
+        return res.u[min(max(i, 0), res.t.size - 1)]
+
+    x_init = np.concatenate([tr.q[0], tr.qd[0], res.a[0]])
+    sim = simulate_musculoskeletal_rk4(model, x_init, tr.x0, excitation, float(tr.t[-1]))
+    i = int(np.searchsorted(sim.t, sim.liftoff_s))
+    height = model.jump_height(sim.x[i, :6], sim.x[i, 6:12])['height_m']
+    assert abs(height / jump['height_m'] - 1) < 0.02, (height, jump['height_m'])
+
+
+def test_rest_activations_from_the_first_torque_sample(tracker, jump):
+    """a0 without the truth: min sum a^2 at rest reproducing tau_ref(0) (the jump starts from
+    the static squat, which used the same criterion)."""
+    tr = jump['truth']
+    t, tau, theta, theta_dot, _ = jump['inputs']
+    r = rest_activations(tracker.model, theta[0], tau[0])
+    assert r.exact and np.abs(r.residual).max() < 1e-6
+    np.testing.assert_allclose(r.a, tr.a[0], atol=1e-5)
+    drift, gain = tracker.activation.affine(r.a)
+    np.testing.assert_allclose(drift + gain * r.u, 0.0, atol=1e-9)   # held at rest
+    impossible = rest_activations(tracker.model, theta[0], 5 * tau[0])
+    assert not impossible.exact and np.all((impossible.a >= 0) & (impossible.a <= 1))
+    assert np.abs(impossible.residual).max() > 1.0

@@ -181,3 +181,110 @@ def test_lqt_control_matches_explicit_formula():
     expected = np.stack([np.linalg.solve(np.diag(r), g[i] - W[i] @ f[i]) for i in range(5)])
     np.testing.assert_allclose(rc.lqt_control(W, g, f, r), expected, rtol=1e-12)
     np.testing.assert_allclose(rc.lqt_control(W, g, f, np.diag(r)), expected, rtol=1e-12)
+
+
+# ---------------------------------------------------------------------------- bounded / discrete
+def _bounded_problem(n: int = 41, seed: int = 2) -> dict:
+    """Small Stage-2-like problem: 4 'muscles', 2 joints, activation-like step bounds."""
+    rng = np.random.default_rng(seed)
+    h = 0.004
+    t = np.arange(n) * h
+    m, p = 4, 2
+    C = (rng.normal(scale=0.04, size=(p, m))[None]
+         * (1 + 0.3 * np.sin(20 * t))[:, None, None])
+    phi = 1000 * (1 + 0.2 * np.cos(15 * t))[:, None] * rng.uniform(0.5, 1.5, m)[None]
+    psi = 20 * rng.uniform(size=(1, m)) * (1 + t[:, None])
+    tau = np.stack([40 * np.sin(25 * t), 30 * np.cos(18 * t) - 10], axis=1)
+    tau_act, tau_deact = 0.01, 0.04
+    lo = (np.full(m, np.exp(-h / tau_deact)), np.zeros(m))          # u = 0
+    hi = (np.full(m, np.exp(-h / tau_act)), np.full(m, 1 - np.exp(-h / tau_act)))   # u = 1
+    return {'h': h, 't': t, 'C': C, 'phi': phi, 'psi': psi, 'tau': tau, 'Q': 1500 * np.eye(p),
+            'R': 1000 * rng.uniform(0.1, 1, m) / 1000 ** 2, 'x0': np.full(m, 0.1),
+            'lo': lo, 'hi': hi}
+
+
+def _discrete_cost(pr: dict, x: np.ndarray) -> float:
+    f = pr['phi'] * x + pr['psi']
+    e = pr['tau'] - np.einsum('npm,nm->np', pr['C'], f)
+    w = np.full(x.shape[0], pr['h'])
+    w[0] = w[-1] = 0.5 * pr['h']
+    return float(0.5 * np.sum(w * np.einsum('np,pq,nq->n', e, pr['Q'], e))
+                 + 0.5 * np.sum(pr['R'] / pr['h'] * np.diff(f, axis=0) ** 2))
+
+
+def test_bounded_lqt_satisfies_the_kkt_conditions():
+    """Convex QP: stationarity, dual feasibility, complementarity and primal feasibility are
+    sufficient; the gradient is taken from the cost itself by central differences (exact for a
+    quadratic up to rounding)."""
+    pr = _bounded_problem()
+    sol = rc.solve_bounded_lqt(pr['h'], pr['C'], pr['tau'], pr['Q'], pr['R'], pr['phi'],
+                               pr['psi'], pr['x0'], pr['lo'], pr['hi'], tol=1e-10)
+    assert sol.converged and sol.cost == pytest.approx(_discrete_cost(pr, sol.x), rel=1e-12)
+    n, m = sol.x.shape
+    (la, lb), (ha, hb) = pr['lo'], pr['hi']
+    grad = np.zeros((n - 1, m))
+    step = 1e-3
+    for i in range(1, n):
+        for j in range(m):
+            xp, xm = sol.x.copy(), sol.x.copy()
+            xp[i, j] += step
+            xm[i, j] -= step
+            grad[i - 1, j] = (_discrete_cost(pr, xp) - _discrete_cost(pr, xm)) / (2 * step)
+    # A' z: c_lo = x_i+1 - la x_i - lb, c_hi = ha x_i + hb - x_i+1 (interval i = 0..n-2)
+    at_z = sol.z_lo - sol.z_hi
+    at_z[:-1] += -la * sol.z_lo[1:] + ha * sol.z_hi[1:]
+    scale = np.abs(grad).max()
+    assert np.abs(grad - at_z).max() < 1e-6 * scale
+    assert min(sol.z_lo.min(), sol.z_hi.min()) >= 0
+    assert min(sol.slack_lo.min(), sol.slack_hi.min()) > -1e-12
+    np.testing.assert_allclose(sol.slack_lo, sol.x[1:] - la * sol.x[:-1] - lb, atol=1e-12)
+    np.testing.assert_allclose(sol.slack_hi, ha * sol.x[:-1] + hb - sol.x[1:], atol=1e-12)
+    assert max(np.max(sol.z_lo * sol.slack_lo), np.max(sol.z_hi * sol.slack_hi)) < 1e-8 * scale
+    # the bounds bind somewhere (else the test would not test them)
+    pos = sol.position()
+    assert np.any(pos > 1 - 1e-6) and np.any(pos < 1e-6)
+
+
+def test_discrete_lqt_equals_the_bounded_lqt_without_and_with_active_bounds():
+    pr = _bounded_problem()
+    args = (pr['h'], pr['C'], pr['tau'], pr['Q'], pr['R'], pr['phi'], pr['psi'])
+    m = pr['x0'].size
+    # without active bounds: the bounded solution is the plain discrete LQT (all free)
+    loose = ((np.ones(m), -1e3 * np.ones(m)), (np.ones(m), 1e3 * np.ones(m)))
+    sol = rc.solve_bounded_lqt(*args, pr['x0'], *loose, tol=1e-12)
+    dl = rc.discrete_lqt(*args)
+    n = pr['t'].size
+    free = np.ones((n - 1, m), dtype=bool)
+    x = dl.simulate(pr['x0'], np.ones((n - 1, m)), free, np.zeros((n - 1, m)))
+    np.testing.assert_allclose(x, sol.x, atol=1e-7)
+    # with them: the discrete LQT over the active set reproduces the bounded solution
+    sol = rc.solve_bounded_lqt(*args, pr['x0'], pr['lo'], pr['hi'], tol=1e-12)
+    pos = sol.position()
+    high, low = pos > 1 - 1e-6, pos < 1e-6
+    (la, lb), (ha, hb) = pr['lo'], pr['hi']
+    E = np.where(high, ha, np.where(low, la, 1.0))
+    c = np.where(high, hb, np.where(low, lb, 0.0))
+    free = ~(high | low)
+    dl = rc.discrete_lqt(*args, E=E, free=free, c=c)
+    x = dl.simulate(pr['x0'], E, free, c)
+    np.testing.assert_allclose(x, sol.x, atol=1e-6)
+    assert np.all(np.linalg.eigvalsh(dl.S).min(axis=1) > -1e-9 * np.abs(dl.S).max())
+
+
+def test_discrete_lqt_tends_to_the_continuous_lqt():
+    """phi = 1, psi = 0, no bounds: the discrete Eqs. 12-14 converge to the continuous ones."""
+    C0, Q, R = _jumper_problem()
+    r = np.diag(R)
+    errs = []
+    for n in (101, 201, 401):
+        t = np.linspace(0, 0.2, n)
+        C = C0[None] * (1 + 0.3 * np.sin(20 * t))[:, None, None]
+        tau = np.stack([100 * np.sin(30 * t), 50 * np.cos(20 * t), -80 - 200 * t], axis=1)
+        f0 = np.full(9, 300.0)
+        cont = rc.simulate_linear(rc.solve_lqt(t, C, tau, Q, r), f0)[0]
+        dl = rc.discrete_lqt(t[1] - t[0], C, tau, Q, r, np.ones((n, 9)), np.zeros((n, 9)))
+        ones = np.ones((n - 1, 9))
+        disc = dl.simulate(f0, ones, ones > 0, 0 * ones)
+        errs.append(np.abs(disc - cont).max())
+    order = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    assert np.all(order > 1.8), (errs, order)          # second order in h

@@ -38,7 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
+from scipy.linalg import expm, get_lapack_funcs
 
 #: Below this x = mu h the step functions are evaluated by their Taylor series.
 _SERIES_X = 0.02
@@ -148,7 +148,7 @@ def _uniform_step(t: np.ndarray) -> float:
         raise ValueError('t must be a 1-D grid of at least 2 samples')
     dt = np.diff(t)
     h = float(dt.mean())
-    if h <= 0 or np.max(np.abs(dt - h)) > 1e-6 * h + 1e-12:
+    if h <= 0 or np.max(np.abs(dt - h)) > 1e-4 * h:   # (time stamps in ns jitter ~1e-6 h)
         raise ValueError('t must be uniform and increasing')
     return h
 
@@ -193,7 +193,7 @@ def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
 def concat_grids(first: LqtGrid, second: LqtGrid) -> LqtGrid:
     """Join two grids; ``second`` starts at the last sample of ``first`` (shared sample)."""
     if abs(second.t[0] - first.t[-1]) > 1e-9 * max(1.0, abs(first.t[-1])) or \
-            abs(second.h - first.h) > 1e-6 * first.h:
+            abs(second.h - first.h) > 1e-4 * first.h:
         raise ValueError('grids must share their joining sample and step')
     per_sample = ('t', 'm_tilde', 'b_tilde', 'wt_terminal', 'gt_terminal')
     joined = {k: np.concatenate([getattr(first, k), getattr(second, k)[1:]])
@@ -414,3 +414,312 @@ def tracking_cost(t: np.ndarray, f: np.ndarray, eta: np.ndarray, C: np.ndarray,
     if P is not None:
         total += 0.5 * float(e[-1] @ P @ e[-1])
     return total
+
+
+# ---------------------------------------------------------------------------- bounded LQT
+@dataclass(frozen=True)
+class BoundedLqtSolution:
+    """Solution of ``solve_bounded_lqt`` on a grid of n samples (x[0] = the given x0)."""
+
+    x: np.ndarray              # [n, m] states (Stage 2: activations)
+    f: np.ndarray              # [n, m] outputs f = phi x + psi (Stage 2: forces)
+    slack_lo: np.ndarray       # [n-1, m] x_i+1 - (lo_a x_i + lo_b) >= 0
+    slack_hi: np.ndarray       # [n-1, m] (hi_a x_i + hi_b) - x_i+1 >= 0
+    z_lo: np.ndarray           # [n-1, m] multipliers (>= 0)
+    z_hi: np.ndarray           # [n-1, m]
+    cost: float                # the discretised Eq. 11
+    iterations: int
+    converged: bool
+
+    def position(self) -> np.ndarray:
+        """Where x_i+1 lies in its reachable interval, 0 (lower bound) .. 1 (upper) [n-1, m]."""
+        width = self.slack_lo + self.slack_hi
+        return np.clip(self.slack_lo / np.where(width > 0, width, 1.0), 0.0, 1.0)
+
+
+def _banded_blocks(diag_blocks: np.ndarray, coupling: np.ndarray) -> np.ndarray:
+    """Lower banded storage (LAPACK, bandwidth m) of a block-tridiagonal SPD matrix whose
+    diagonal blocks [N, m, m] are dense and whose off-diagonal blocks [N-1, m] are diagonal."""
+    nb, m, _ = diag_blocks.shape
+    ab = np.zeros((m + 1, nb * m))
+    for k in range(m):
+        rows = np.arange(k, m)
+        ab[k].reshape(nb, m)[:, :m - k] = diag_blocks[:, rows, rows - k]
+    ab[m].reshape(nb, m)[:-1] = coupling
+    return ab
+
+
+def solve_bounded_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
+                      R: np.ndarray, phi: np.ndarray, psi: np.ndarray, x0: np.ndarray,
+                      lo: tuple[np.ndarray, np.ndarray], hi: tuple[np.ndarray, np.ndarray],
+                      P: np.ndarray | None = None, tol: float = 1e-9,
+                      max_iterations: int = 80) -> BoundedLqtSolution:
+    """Eq. 11 in discrete time with bounds on the state steps (a convex QP), interior point.
+
+    Grid of n samples, step h; outputs f_i = phi_i x_i + psi_i (elementwise, [n, m]); cost
+    1/2 e_n-1' P e_n-1 + 1/2 sum_i w_i e_i' Q e_i + 1/2 sum_i h eta_i' R eta_i with
+    e_i = tau_ref_i - C_i f_i (trapezoid weights w), eta_i = (f_i+1 - f_i)/h the interval's
+    rate (R diagonal [m]); subject to lo_a x_i + lo_b <= x_i+1 <= hi_a x_i + hi_b per element
+    (lo, hi = (slope, offset), each [m] or [n-1, m]); x_0 = x0 given.
+
+    For Stage 2, x are the activations, the bounds are the exact activation steps at u = 0
+    and u = 1, and this is the LQT of Eq. 11 (fdot = eta, tau = C f) with the excitation
+    limits 0 <= u <= 1 imposed. Primal-dual interior point (Mehrotra predictor-corrector).
+    Each Newton step is the unconstrained discrete LQT with time-varying weights (the barrier
+    Hessians) whose normal matrix is block-tridiagonal; it is factorised by banded Cholesky,
+    which is the discrete Riccati recursion of that LQT written as a matrix factorisation.
+    Cost per iteration O(n m^3); typically 20-40 iterations.
+    """
+    C = np.asarray(C, dtype=float)
+    tau_ref = np.asarray(tau_ref, dtype=float)
+    n, p, m = C.shape
+    phi = np.asarray(phi, dtype=float)
+    psi = np.asarray(psi, dtype=float)
+    r = np.asarray(R, dtype=float)
+    if r.ndim != 1:
+        raise ValueError('solve_bounded_lqt needs a diagonal R [m]')
+    Q = np.asarray(Q, dtype=float)
+    x0 = np.asarray(x0, dtype=float)
+    if n < 2:
+        raise ValueError('need at least 2 samples')
+    la, lb = (np.broadcast_to(np.asarray(v, dtype=float), (n - 1, m)) for v in lo)
+    ha, hb = (np.broadcast_to(np.asarray(v, dtype=float), (n - 1, m)) for v in hi)
+    w = np.full(n, h)
+    w[0] = w[-1] = 0.5 * h
+    # tracking: per sample, in x (samples 1..n-1)
+    ctq = np.swapaxes(C, 1, 2) @ Q                                  # [n, m, p]
+    T = w[:, None, None] * (ctq @ C)
+    b_track = w[:, None] * np.einsum('nmp,np->nm', ctq, tau_ref - np.einsum('npm,nm->np', C,
+                                                                             psi))
+    if P is not None:
+        ctp = C[-1].T @ np.asarray(P, dtype=float)
+        T[-1] += ctp @ C[-1]
+        b_track[-1] += ctp @ (tau_ref[-1] - C[-1] @ psi[-1])
+    T = phi[1:, :, None] * T[1:] * phi[1:, None, :]                 # [n-1, m, m]
+    g_lin = -phi[1:] * b_track[1:]
+    # effort: rho_i = phi_i+1 x_i+1 - phi_i x_i + (psi_i+1 - psi_i), interval i = 0..n-2
+    k_eff = r / h
+    d_psi = np.diff(psi, axis=0)
+    d_psi[0] -= phi[0] * x0                                         # x_0 is data
+    e_diag = np.zeros((n - 1, m))
+    e_diag += k_eff * phi[1:] ** 2                                  # as x_i+1 (x-sample i)
+    e_diag[:-1] += k_eff * phi[1:-1] ** 2                           # as x_i (intervals 1..)
+    e_off = -k_eff * phi[1:-1] * phi[2:]                            # [n-2, m]
+    g_lin = g_lin + k_eff * phi[1:] * d_psi
+    g_lin[:-1] -= k_eff * phi[1:-1] * d_psi[1:]
+    diag_idx = np.arange(m)
+
+    def hess_vec(x: np.ndarray) -> np.ndarray:
+        out = np.einsum('kij,kj->ki', T, x) + e_diag * x
+        out[:-1] += e_off * x[1:]
+        out[1:] += e_off * x[:-1]
+        return out
+
+    def prev(x: np.ndarray) -> np.ndarray:
+        """x_i for the intervals i = 0..n-2 (x_0 the data; zero for directions)."""
+        return np.vstack([np.zeros((1, m)), x[:-1]])
+
+    lb0 = lb.copy()
+    hb0 = hb.copy()
+    lb0[0] += la[0] * x0
+    hb0[0] += ha[0] * x0
+
+    def constraints(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        xp = prev(x)
+        return x - la * xp - lb0, ha * xp + hb0 - x
+
+    def at_z(z_lo: np.ndarray, z_hi: np.ndarray) -> np.ndarray:
+        """A' z for c_lo = x_i+1 - la x_i - ..., c_hi = ha x_i + ... - x_i+1."""
+        out = z_lo - z_hi
+        out[:-1] += -la[1:] * z_lo[1:] + ha[1:] * z_hi[1:]
+        return out
+
+    def cost(x: np.ndarray) -> float:
+        xf = np.vstack([x0, x])
+        f = phi * xf + psi
+        e = tau_ref - np.einsum('npm,nm->np', C, f)
+        val = 0.5 * np.sum(w * np.einsum('np,pq,nq->n', e, Q, e))
+        val += 0.5 * np.sum(k_eff * np.diff(f, axis=0) ** 2)
+        if P is not None:
+            val += 0.5 * float(e[-1] @ np.asarray(P, dtype=float) @ e[-1])
+        return float(val)
+
+    # strictly feasible start: the middle of the reachable interval at every step
+    x = np.empty((n - 1, m))
+    xi = x0
+    for i in range(n - 1):
+        xi = 0.5 * ((la[i] + ha[i]) * xi + lb[i] + hb[i])
+        x[i] = xi
+    sl = np.stack(constraints(x))                        # slacks [2, n-1, m] (lo, hi)
+    z_scale = max(1.0, float(np.max(np.abs(hess_vec(x) + g_lin))))
+    z = np.full_like(sl, z_scale)                        # multipliers
+    n_con = sl.size
+    converged = False
+    g_norm = 1.0 + float(np.max(np.abs(g_lin)))
+    pbtrf, pbtrs = get_lapack_funcs(('pbtrf', 'pbtrs'), (x,))
+    iterations = 0
+    while iterations < max_iterations:
+        rd = hess_vec(x) + g_lin - at_z(z[0], z[1])
+        gap = float(np.sum(sl * z))
+        if np.max(np.abs(rd)) <= tol * g_norm and gap <= tol * (1.0 + abs(cost(x))):
+            converged = True
+            break
+        iterations += 1
+        mu = gap / n_con
+        dd = z / sl
+        # normal matrix H + A' diag(z/s) A: block tridiagonal with diagonal couplings
+        blocks = T.copy()
+        extra = dd[0] + dd[1]
+        extra[:-1] += la[1:] ** 2 * dd[0, 1:] + ha[1:] ** 2 * dd[1, 1:]
+        blocks[:, diag_idx, diag_idx] += e_diag + extra
+        coupling = e_off - la[1:] * dd[0, 1:] - ha[1:] * dd[1, 1:]
+        chol, info = pbtrf(_banded_blocks(blocks, coupling), lower=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f'bounded LQT: normal matrix not positive ({info})')
+
+        ops = (chol, pbtrs, rd, sl, z, la, ha, at_z, prev)
+        _, ds_a, dz_a = _ip_direction(sl * z, *ops)      # predictor (affine scaling)
+        a_aff = _ip_max_step(sl, z, ds_a, dz_a)
+        mu_aff = float(np.sum((sl + a_aff * ds_a) * (z + a_aff * dz_a))) / n_con
+        sigma = (mu_aff / mu) ** 3
+        dx, ds, dz = _ip_direction(sl * z + ds_a * dz_a - sigma * mu, *ops)   # corrector
+        alpha = min(1.0, 0.99 * _ip_max_step(sl, z, ds, dz))
+        x = x + alpha * dx
+        sl = sl + alpha * ds
+        z = z + alpha * dz
+    xf = np.vstack([x0, x])
+    s_lo, s_hi = constraints(x)
+    return BoundedLqtSolution(x=xf, f=phi * xf + psi, slack_lo=s_lo, slack_hi=s_hi,
+                              z_lo=z[0], z_hi=z[1], cost=cost(x), iterations=iterations,
+                              converged=converged)
+
+
+def _ip_direction(rc: np.ndarray, chol: np.ndarray, pbtrs: callable, rd: np.ndarray,
+                  sl: np.ndarray, z: np.ndarray, la: np.ndarray, ha: np.ndarray,
+                  at_z: callable, prev: callable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Newton direction (dx, ds, dz) of the primal-dual system for complementarity targets rc
+    (the slacks equal the constraints, which are linear: no primal residual)."""
+    q = rc / sl
+    rhs = -rd - at_z(q[0], q[1])
+    dx = pbtrs(chol, rhs.ravel(), lower=1)[0].reshape(rd.shape)
+    dxp = prev(dx)
+    ds = np.stack([dx - la * dxp, ha * dxp - dx])
+    return dx, ds, -(rc + z * ds) / sl
+
+
+def _ip_max_step(s: np.ndarray, z: np.ndarray, ds: np.ndarray, dz: np.ndarray) -> float:
+    """Largest alpha <= 1 keeping s + alpha ds >= 0 and z + alpha dz >= 0."""
+    ratio = np.concatenate([np.where(ds < 0, -s / np.where(ds < 0, ds, -1.0), np.inf).ravel(),
+                            np.where(dz < 0, -z / np.where(dz < 0, dz, -1.0), np.inf).ravel()])
+    return float(min(1.0, ratio.min()))
+
+
+# ---------------------------------------------------------------------------- discrete LQT
+@dataclass(frozen=True)
+class DiscreteLqt:
+    """Discrete-time Eqs. 12-14 on a grid of n samples: V_i(x) = 1/2 x' S_i x - s_i' x + c.
+
+    S [n, m, m] (the discrete W, in the coordinates x), s [n, m] (the discrete g); the optimal
+    input of interval i is v_i = -K_i x_i + k_i (K [n-1, m, m], k [n-1, m]: the discrete
+    Eq. 14).
+    """
+
+    S: np.ndarray
+    s: np.ndarray
+    K: np.ndarray
+    k: np.ndarray
+
+    def simulate(self, x0: np.ndarray, E: np.ndarray, free: np.ndarray,
+                 c: np.ndarray) -> np.ndarray:
+        """x [n, m] of the closed loop x_i+1 = E_i x_i + B_i (-K_i x_i + k_i) + c_i."""
+        x = np.empty((self.S.shape[0], np.size(x0)))
+        x[0] = x0
+        for i in range(x.shape[0] - 1):
+            v = self.k[i] - self.K[i] @ x[i]
+            x[i + 1] = E[i] * x[i] + np.where(free[i], v, 0.0) + c[i]
+        return x
+
+
+def discrete_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray, R: np.ndarray,
+                 phi: np.ndarray, psi: np.ndarray, E: np.ndarray | None = None,
+                 free: np.ndarray | None = None, c: np.ndarray | None = None,
+                 P: np.ndarray | None = None) -> DiscreteLqt:
+    """Backward Riccati/adjoint recursion of the discretised Eq. 11 of ``solve_bounded_lqt``
+    for x_i+1 = E_i x_i + B_i v_i + c_i, B_i = diag(free_i), outputs f = phi x + psi.
+
+    Free elements (``free`` True; E = 1, c = 0 there) move by their input v; the others follow
+    a given diagonal affine map and carry no input (Stage 2: a muscle held at u = 0 or 1
+    follows its own activation step). The cost is that of ``solve_bounded_lqt`` (trapezoid
+    tracking, 1/2 h |(f_i+1 - f_i)/h|_R^2 effort, R diagonal [m]); a held element's effort
+    becomes a state cost. With every element free and phi = 1, psi = 0 this is the discrete
+    counterpart of Eqs. 12-14 for A = 0, B = I (x = f, v = h eta). The recursion is the exact
+    minimiser of the discrete problem, so with the active set of ``solve_bounded_lqt`` it
+    reproduces that solution (tested).
+    """
+    C = np.asarray(C, dtype=float)
+    tau_ref = np.asarray(tau_ref, dtype=float)
+    n, p, m = C.shape
+    r = np.asarray(R, dtype=float)
+    if r.ndim != 1:
+        raise ValueError('discrete_lqt needs a diagonal R [m]')
+    phi = np.asarray(phi, dtype=float)
+    psi = np.asarray(psi, dtype=float)
+    E = np.ones((n - 1, m)) if E is None else np.asarray(E, dtype=float)
+    free = np.ones((n - 1, m), dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    c = np.zeros((n - 1, m)) if c is None else np.asarray(c, dtype=float)
+    Q = np.asarray(Q, dtype=float)
+    w = np.full(n, h)
+    w[0] = w[-1] = 0.5 * h
+    ctq = np.swapaxes(C, 1, 2) @ Q
+    track = w[:, None, None] * (phi[:, :, None] * (ctq @ C) * phi[:, None, :])
+    track_lin = w[:, None] * phi * np.einsum('nmp,np->nm', ctq, tau_ref - np.einsum(
+        'npm,nm->np', C, psi))
+    rh = r / h
+    B = free.astype(float)
+    # effort of interval i: 1/2 |G x_i + H v_i + d|^2_Rh, f_i+1 - f_i = G x + H v + d
+    G = phi[1:] * E - phi[:-1]
+    H = phi[1:] * B
+    d = phi[1:] * c + np.diff(psi, axis=0)
+    S_out = np.empty((n, m, m))
+    s_out = np.empty((n, m))
+    K_out = np.empty((n - 1, m, m))
+    k_out = np.empty((n - 1, m))
+    S = track[-1].copy()
+    s = track_lin[-1].copy()
+    if P is not None:
+        cp = phi[-1][:, None] * (C[-1].T @ np.asarray(P, dtype=float))
+        S += cp @ C[-1] * phi[-1][None, :]
+        s += cp @ (tau_ref[-1] - C[-1] @ psi[-1])
+    S_out[-1], s_out[-1] = S, s
+    # everything but the recursion, vectorised over the intervals
+    ee = E[:, :, None] * E[:, None, :]
+    eb = E[:, :, None] * B[:, None, :]
+    bb = B[:, :, None] * B[:, None, :]
+    diag = np.arange(m)
+    qxx0 = track[:-1].copy()
+    qxx0[:, diag, diag] += G ** 2 * rh
+    qvv_d = H ** 2 * rh
+    # no input where held; a vanishing dF/da leaves v free: keep the solve regular
+    qvv_d += np.where(free, 1e-12 * np.max(qvv_d, axis=1, keepdims=True), 1.0)
+    qxv_d = G * H * rh
+    lin_v = H * rh * d
+    lin_x = track_lin[:-1] - G * rh * d
+    posv = get_lapack_funcs('posv', (S,))
+    rhs = np.empty((m, m + 1))
+    for i in range(n - 2, -1, -1):
+        sc = s - S @ c[i]
+        qxx = qxx0[i] + ee[i] * S
+        qxv = eb[i] * S
+        qxv[diag, diag] += qxv_d[i]
+        qvv = bb[i] * S
+        qvv[diag, diag] += qvv_d[i]
+        rhs[:, :m] = qxv.T
+        rhs[:, m] = B[i] * sc - lin_v[i]
+        _, sol, info = posv(qvv, rhs, lower=1)
+        if info != 0:
+            sol = np.linalg.solve(qvv, rhs)
+        K_out[i], k_out[i] = sol[:, :m], sol[:, m]
+        S = _sym(qxx - qxv @ sol[:, :m])
+        s = lin_x[i] + E[i] * sc - qxv @ sol[:, m]
+        S_out[i], s_out[i] = S, s
+    return DiscreteLqt(S=S_out, s=s_out, K=K_out, k=k_out)
