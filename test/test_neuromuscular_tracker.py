@@ -339,7 +339,7 @@ def test_reference_jump_full_horizon_tracks_true_torques(tracker, clip_tracker, 
         j = tracker.names.index(name)
         assert rep.fraction_high[j] > 0.3 and rep.fraction_planned[j] > 0.3
     assert rep.shortfall_integral.max() < 1.0               # nothing the plan did not foresee
-    assert len(res.plan_iterations) == 1 and res.plan_iterations[0] < 40
+    assert len(res.plan_iterations) == 1 and res.plan_iterations[0] < 40 and res.plan_converged
     # forces: the effort criterion shares the load differently from the jump's optimiser
     # (RF, GAS), but every muscle stays within 8 % F0 of the truth
     d = np.sqrt(np.mean((res.f - tr.f)[contact] ** 2, axis=0)) / tracker.f0

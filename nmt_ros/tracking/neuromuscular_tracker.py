@@ -38,15 +38,17 @@ Saturation (``settings.saturation``; DEPARTS FROM THE PAPER in the default 'plan
   activation dynamics at u = 0 / 1 (their C f moves into the reference, their effort weight
   into the state cost). ``apply`` then holds the saturated muscles at their bound and moves the
   free ones by the feedback law (activation step -> excitation as above; a target out of reach
-  is still clipped and reported as unplanned). Why this and not the suggested simpler
-  variants (measured on the reference jump, bench/bench_stage2.py): re-weighting R(t) or
-  iterating the saturation pattern of the continuous LQT (a primal-dual active-set iteration,
-  released muscles chosen by the sign of the costate) does not converge - the pattern cycles
-  and the cost oscillates (best iterate 0.8 / 3.3 / 2.0 %, cost 2x the constrained optimum);
-  the continuous exact-step LQT run on the right active set is 1-2 % F0 off the discrete
-  optimum at 1 ms steps (its frozen per-interval coefficients err O(h^2) with a large constant
-  in the co-contraction directions; 1.6 % F0 even without bounds, against 0.02 % for the
-  discrete form), which made windowed and full horizon differ by 3.4 % F0. The discrete LQT on
+  is still clipped and reported as unplanned). Why this and not simpler variants (prototypes
+  measured on the reference jump during development, not kept): taking the saturated muscles
+  out of the continuous LQT (time-varying R: effort weight x1e4 over their saturated
+  intervals, their forces of the previous pass as a known input) and iterating the saturation
+  pattern from pass to pass (a primal-dual active-set iteration; a muscle released when the
+  costate asks for less than its bound) does not converge - the pattern cycles and the cost
+  oscillates (best pass 0.8 / 3.3 / 2.0 %, cost 2x the constrained optimum); and even on the
+  right active set the continuous exact-step LQT is 1-2 % F0 off the discrete optimum at 1 ms
+  steps (its frozen per-interval coefficients err O(h^2) with a large constant in the
+  co-contraction directions: 1.6 % F0 even without bounds, against 0.02 % for the discrete
+  form), which made windowed and full horizon differ by 3.4 % F0. The discrete LQT on
   the QP's active set reproduces the QP to 1e-4 % F0; without active bounds it is the discrete
   counterpart of Eqs. 12-14. Result on the reference jump's true torques: 0.4 / 1.4 / 1.1 %,
   forces within 6.3 % F0 of the truth (RF; the rest <= 3.4 %), NMT jump 1 % low, 0.05 s CPU.
@@ -309,6 +311,7 @@ class WindowPlan:
     pattern: np.ndarray | None = None   # [k, m] int8
     plan_iterations: int = 0            # interior-point iterations of the bounded LQT
     plan_cost: float = float('nan')     # its cost (discretised Eq. 11) over the horizon
+    plan_converged: bool = True         # the interior point met its tolerance
 
     @property
     def k(self) -> int:
@@ -421,6 +424,7 @@ class Stage2Result:
     substeps: int = 1
     saturation_mode: str = 'clip'
     plan_iterations: tuple[int, ...] = ()   # interior-point iterations per plan ('plan' mode)
+    plan_converged: bool = True             # every plan's interior point met its tolerance
 
     @property
     def tracking_error(self) -> np.ndarray:
@@ -624,7 +628,7 @@ class NeuromuscularTracker:
                           discrete={'K': dl.K[:k], 'k': dl.k[:k], 'E': E[:k], 'c': c[:k],
                                     'free': free[:k]},
                           pattern=pattern[:k], plan_iterations=qp.iterations,
-                          plan_cost=qp.cost)
+                          plan_cost=qp.cost, plan_converged=qp.converged)
 
     def held_steps(self, pattern: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
         """Activation step a_i+1 = E a_i + c of each interval for muscles held at a bound
@@ -903,7 +907,8 @@ class NeuromuscularTracker:
                             W=W, g=g, saturation=report, cpu_s=cpu, wall_s=wall,
                             window_length=window_length, window_stride=window_stride,
                             substeps=ref.substeps, saturation_mode=self.settings.saturation,
-                            plan_iterations=tuple(p.plan_iterations for p in plans))
+                            plan_iterations=tuple(p.plan_iterations for p in plans),
+                            plan_converged=all(p.plan_converged for p in plans))
 
 
 class _Clock:

@@ -32,6 +32,14 @@ The forward closed loop fdot = R^-1 (g - W f) is likewise solved exactly per int
 Any step is stable. Accuracy: second order where mu h is small; where mu h >> 1 the stiff modes
 sit at the quasi-steady value of the frozen coefficients, which lags the time variation of C by
 O(h) - so the Stage 2 tracker refines coarse inputs to <= 1 ms internally (``max_step``).
+
+Bounds (not in the paper; Stage 2's default 'plan' mode): ``solve_bounded_lqt`` solves Eq. 11
+discretised on the grid with bounds on every state step (Stage 2: activations between the
+exact activation steps at u = 0 and u = 1), a convex QP, by a primal-dual interior point whose
+Newton systems are block tridiagonal (banded Cholesky = the discrete Riccati recursion of that
+step's LQT). ``discrete_lqt`` is the Riccati / adjoint / feedback recursion (Eqs. 12-14 in
+discrete time) of the same discretised cost for given held elements (the QP's active set);
+without held elements it converges to the continuous solution at second order in h (tested).
 """
 from __future__ import annotations
 
@@ -437,16 +445,24 @@ class BoundedLqtSolution:
         return np.clip(self.slack_lo / np.where(width > 0, width, 1.0), 0.0, 1.0)
 
 
-def _banded_blocks(diag_blocks: np.ndarray, coupling: np.ndarray) -> np.ndarray:
-    """Lower banded storage (LAPACK, bandwidth m) of a block-tridiagonal SPD matrix whose
-    diagonal blocks [N, m, m] are dense and whose off-diagonal blocks [N-1, m] are diagonal."""
-    nb, m, _ = diag_blocks.shape
-    ab = np.zeros((m + 1, nb * m))
-    for k in range(m):
-        rows = np.arange(k, m)
-        ab[k].reshape(nb, m)[:, :m - k] = diag_blocks[:, rows, rows - k]
-    ab[m].reshape(nb, m)[:-1] = coupling
-    return ab
+class _BandedLayout:
+    """Index maps into LAPACK's lower banded storage (bandwidth m) of a block-tridiagonal
+    matrix with N dense diagonal blocks [m, m] and diagonal off-diagonal blocks."""
+
+    def __init__(self, nb: int, m: int) -> None:
+        r, c = np.tril_indices(m)
+        base = np.arange(nb)[:, None] * m
+        self.shape = (m + 1, nb * m)
+        self.band = np.broadcast_to(r - c, (nb, r.size)).ravel()
+        self.col = (base + c).ravel()
+        self.rows, self.cols = r, c
+        self.coupling_col = (base[:-1] + np.arange(m)).ravel()
+
+    def fill(self, blocks: np.ndarray, coupling: np.ndarray) -> np.ndarray:
+        ab = np.zeros(self.shape)
+        ab[self.band, self.col] = blocks[:, self.rows, self.cols].ravel()
+        ab[-1, self.coupling_col] = coupling.ravel()
+        return ab
 
 
 def solve_bounded_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
@@ -557,6 +573,7 @@ def solve_bounded_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
     converged = False
     g_norm = 1.0 + float(np.max(np.abs(g_lin)))
     pbtrf, pbtrs = get_lapack_funcs(('pbtrf', 'pbtrs'), (x,))
+    layout = _BandedLayout(n - 1, m)
     iterations = 0
     while iterations < max_iterations:
         rd = hess_vec(x) + g_lin - at_z(z[0], z[1])
@@ -573,7 +590,7 @@ def solve_bounded_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
         extra[:-1] += la[1:] ** 2 * dd[0, 1:] + ha[1:] ** 2 * dd[1, 1:]
         blocks[:, diag_idx, diag_idx] += e_diag + extra
         coupling = e_off - la[1:] * dd[0, 1:] - ha[1:] * dd[1, 1:]
-        chol, info = pbtrf(_banded_blocks(blocks, coupling), lower=1)
+        chol, info = pbtrf(layout.fill(blocks, coupling), lower=1)
         if info != 0:
             raise np.linalg.LinAlgError(f'bounded LQT: normal matrix not positive ({info})')
 
