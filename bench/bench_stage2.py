@@ -180,15 +180,16 @@ def windows(tracker: nt.NeuromuscularTracker, ref: dict, a0: np.ndarray,
             per, _ = best_of(one_window, repeat)
             row.append((d, res, cpu, per, stride * stream_ref.grid.h))
         (d, res, cpu, per, st), (d_c, _, cpu_c, per_c, st_c) = row
-        its = np.array(res.plan_iterations) if res.plan_iterations[0] else np.zeros(1)
+        its = np.array(res.plan_iterations)
+        its_s = f'{its.mean():.1f}/{its.max()}' if its.max() else '-'
         print(f'| {1e3 * H:.0f} | {100 * d.max():.2f} % | {tracker.names[int(np.argmax(d))]} | '
               + ', '.join(f'{100 * x:.2f}' for x in contact_rms(res, ref['contact']))
-              + f' | {its.mean():.1f}/{its.max()} | {cpu:.2f} | {1e3 * per:.2f} | '
+              + f' | {its_s} | {cpu:.2f} | {1e3 * per:.2f} | '
               f'{per / st:.1f} | {100 * d_c.max():.2f} % | {cpu_c:.2f} | {1e3 * per_c:.2f} | '
               f'{per_c / st_c:.1f} |')
-    print('stream ms/window: one window planned from its state (bounded LQT + discrete LQT) and '
-          'applied over one stride; real-time ratio = that / stride (< 1: faster than real '
-          'time). Latency = H + stride.')
+    print('stream ms/window: one window planned from its state (plan: bounded LQT + discrete '
+          'LQT; clip: one Riccati sweep) and applied over one stride; real-time ratio = that / '
+          'stride (< 1: faster than real time). Latency = H + stride.')
 
 
 def scaling(repeat: int, n_steps: int = 400) -> None:

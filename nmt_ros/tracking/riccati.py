@@ -590,9 +590,16 @@ def solve_bounded_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
         extra[:-1] += la[1:] ** 2 * dd[0, 1:] + ha[1:] ** 2 * dd[1, 1:]
         blocks[:, diag_idx, diag_idx] += e_diag + extra
         coupling = e_off - la[1:] * dd[0, 1:] - ha[1:] * dd[1, 1:]
-        chol, info = pbtrf(layout.fill(blocks, coupling), lower=1)
+        ab = layout.fill(blocks, coupling)
+        chol, info = pbtrf(ab, lower=1)
+        shift = 1e-14 * float(ab[0].max())
+        while info != 0 and shift < 1e-6 * float(ab[0].max()):
+            # rounding near the solution (z/s spans many decades): a tiny diagonal shift
+            ab[0] += shift
+            chol, info = pbtrf(ab, lower=1)
+            shift *= 100
         if info != 0:
-            raise np.linalg.LinAlgError(f'bounded LQT: normal matrix not positive ({info})')
+            break                          # return the last iterate (converged False)
 
         ops = (chol, pbtrs, rd, sl, z, la, ha, at_z, prev)
         _, ds_a, dz_a = _ip_direction(sl * z, *ops)      # predictor (affine scaling)
