@@ -1,0 +1,68 @@
+"""Planar ground wrench ``s = [Fx, Fy, Mz]`` <-> ``geometry_msgs/msg/WrenchStamped``.
+
+The jumper lives in the sagittal plane: the force plate and the tracked model's contact
+springs give three numbers, ``s[3]`` = fore-aft force ``force.x`` [N], vertical force
+``force.y`` [N] and the moment ``torque.z`` [N m] about the point named by
+``header.frame_id`` (``'foot_com'`` for our topics). The out-of-plane components are written
+as zero and ignored when reading. Arrays are ``[n, 3]`` for batches, ``[3]`` for one message;
+values are validated (finite, right shape) with the ``ValueError`` messages of
+``msg_adapters.validation``.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from geometry_msgs.msg import WrenchStamped
+import numpy as np
+
+from .validation import as_matrix, as_vector, check_finite
+from .wrench import from_wrench_stamped, wrenches_from_arrays, wrenches_to_arrays
+
+PLANAR = ('force.x', 'force.y', 'torque.z')
+
+
+def planar_to_xyz(s: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``s[n, 3]`` -> (force ``[n, 3]``, torque ``[n, 3]``) with zero out-of-plane parts."""
+    s = np.asarray(s, dtype=np.float64)
+    n = s.shape[0]
+    force = np.zeros((n, 3))
+    torque = np.zeros((n, 3))
+    force[:, :2] = s[:, :2]
+    torque[:, 2] = s[:, 2]
+    return force, torque
+
+
+def to_planar_wrench(stamp: Any, frame_id: str, s: Any) -> WrenchStamped:
+    """One ``s[3]`` -> WrenchStamped (stamp: int ns or float s)."""
+    vec = as_vector(s, 3, 'planar wrench', PLANAR)
+    return planar_wrenches_from_arrays(np.array([stamp]), frame_id, vec[None])[0]
+
+
+def planar_wrenches_from_arrays(stamps: Any, frame_id: str, s: Any) -> list[WrenchStamped]:
+    """``n`` stamps and ``s[n, 3]`` -> ``n`` WrenchStamped messages."""
+    stamps = np.asarray(stamps)
+    s = as_matrix(s, stamps.shape[0], 3, 'planar wrench', PLANAR)
+    force, torque = planar_to_xyz(s)
+    return wrenches_from_arrays(stamps, frame_id, force, torque)
+
+
+def from_planar_wrench(msg: WrenchStamped, frame_id: str | None = None,
+                       ) -> tuple[int, np.ndarray]:
+    """One WrenchStamped -> (stamp ns, ``s[3]``); ``frame_id`` given: must match.
+
+    Only the in-plane components are read and checked (NaN/inf raise ``ValueError``).
+    """
+    sample = from_wrench_stamped(msg, frame_id, check=False)
+    s = np.array([sample.force[0], sample.force[1], sample.torque[2]])
+    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR)
+    return sample.stamp_ns, s
+
+
+def planar_from_wrenches(msgs: Sequence[WrenchStamped], frame_id: str | None = None,
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` messages -> (stamps ns ``[n]``, ``s[n, 3]``), vectorised."""
+    series = wrenches_to_arrays(msgs, frame_id, check=False)
+    s = np.column_stack([series.force[:, 0], series.force[:, 1], series.torque[:, 2]])
+    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR)
+    return series.stamp_ns, s

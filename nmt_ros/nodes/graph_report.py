@@ -1,0 +1,291 @@
+"""What the live graph did, read back from its recording (ROS-free; ``nmt demo``, bench, tests).
+
+From a bag recorded by the ``recorder`` node while the graph processed a trial:
+
+- counts: per topic, messages published (the producers' final ``/nmt/status`` records, the
+  observation publisher's for the observations) against messages recorded;
+- latency: for each estimate message, its publication time minus the publication time of the
+  force-plate sample with the same header stamp (both are the publishers' source timestamps,
+  stored as the bag's publish time): the delay from an observation's publication to the
+  estimate for that instant, look-ahead and windows included;
+- CPU: each node's share of one core while active (its status ``cpu_share``);
+- accuracy against the truth topics of the source bag (contact phase: t <= lift-off), the jump
+  height of the tracked motion, and the agreement with the batch trackers run on the same
+  observations with the graph's settings (Stage 1 ``track``; Stage 2 windowed with the same
+  window and stride, fed the batch Stage-1 output).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msg_adapters.cdr_header import header_stamps_ns
+from nmt_ros.io.bags import bag_info, read_arrays, read_bag, read_raw
+from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES
+
+WRENCH_TOPIC = '/force_plate/wrench'
+ANGLES_TOPIC = '/mocap/segment_angles'
+TORQUES = '/nmt/skeletal/joint_torques'
+COORDS = '/nmt/skeletal/generalized_coordinates'
+GROUND = '/nmt/skeletal/ground_wrench'
+FORCES = '/nmt/muscle/forces'
+DATA_TOPICS = (ANGLES_TOPIC, WRENCH_TOPIC, TORQUES, '/nmt/skeletal/segment_angles', COORDS,
+               GROUND, FORCES, '/nmt/muscle/activations', '/nmt/muscle/excitations')
+NODES = ('observation_publisher', 'skeletal_tracker', 'muscle_tracker', 'recorder')
+
+
+@dataclass(frozen=True)
+class TopicTimes:
+    """Header stamps, publish (source) times and log (receive) times of one topic [ns]."""
+
+    stamp_ns: np.ndarray
+    publish_ns: np.ndarray
+    log_ns: np.ndarray
+
+
+def topic_times(bag: str | os.PathLike, topic: str) -> TopicTimes:
+    blobs, pub, log = [], [], []
+    for raw in read_raw(bag, [topic]):
+        blobs.append(raw.data)
+        pub.append(raw.publish_time_ns)
+        log.append(raw.log_time_ns)
+    return TopicTimes(header_stamps_ns(blobs), np.asarray(pub, dtype=np.int64),
+                      np.asarray(log, dtype=np.int64))
+
+
+def latency_ms(estimate: TopicTimes, observation: TopicTimes) -> dict[str, float]:
+    """Publication delay [ms] of each estimate after the observation with the same stamp."""
+    order = np.argsort(observation.stamp_ns, kind='stable')
+    obs_stamps = observation.stamp_ns[order]
+    idx = np.searchsorted(obs_stamps, estimate.stamp_ns)
+    idx = np.clip(idx, 0, max(obs_stamps.size - 1, 0))
+    match = obs_stamps.size > 0
+    ok = (obs_stamps[idx] == estimate.stamp_ns) if match else np.zeros(0, bool)
+    if not match or not ok.any():
+        return {'n': 0, 'p50_ms': math.nan, 'p99_ms': math.nan, 'max_ms': math.nan,
+                'min_ms': math.nan}
+    delay = (estimate.publish_ns[ok] - observation.publish_ns[order][idx[ok]]) / 1e6
+    return {'n': int(ok.sum()), 'p50_ms': float(np.percentile(delay, 50)),
+            'p99_ms': float(np.percentile(delay, 99)), 'max_ms': float(delay.max()),
+            'min_ms': float(delay.min())}
+
+
+def final_statuses(bag: str | os.PathLike) -> dict[str, dict[str, str]]:
+    """Node -> values of its last summary record on /nmt/status (node names without '/')."""
+    from msg_adapters.diagnostics import from_diagnostic_array
+
+    out: dict[str, dict[str, str]] = {}
+    names = {t.name for t in bag_info(bag).topics}
+    if '/nmt/status' not in names:
+        return out
+    for msg in read_bag(bag, ['/nmt/status']):
+        _, records = from_diagnostic_array(msg.msg)
+        for r in records:
+            if ':' not in r.name:
+                out[r.name.lstrip('/')] = dict(r.values, message=r.message, level=r.level)
+    return out
+
+
+def _float(values: Mapping[str, Any], key: str, default: float = math.nan) -> float:
+    try:
+        return float(values[key])
+    except (KeyError, TypeError, ValueError):
+        return default
+
+
+def message_counts(recording: str | os.PathLike,
+                   statuses: Mapping[str, Mapping[str, str]]) -> dict[str, dict[str, int]]:
+    """Topic -> {'published': n (from the producers' status, -1 unknown), 'recorded': n}."""
+    recorded = {t.name: t.message_count for t in bag_info(recording).topics}
+    published: dict[str, int] = {}
+    for node in ('observation_publisher', 'skeletal_tracker', 'muscle_tracker'):
+        for key, value in statuses.get(node, {}).items():
+            if key.startswith('published.'):
+                published[key[len('published.'):]] = int(value)
+    return {topic: {'published': published.get(topic, -1), 'recorded': recorded.get(topic, 0)}
+            for topic in DATA_TOPICS if topic in recorded or topic in published}
+
+
+def _rms(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
+
+
+def _named(names: tuple[str, ...], values: np.ndarray, digits: int = 4) -> dict[str, float]:
+    return {n: round(float(v), digits) for n, v in zip(names, np.ravel(values))}
+
+
+def _columns(series: Any, names: tuple[str, ...], field: str) -> np.ndarray:
+    return np.column_stack([series.column(n, field) for n in names])
+
+
+def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> dict:
+    """Batch Stage 1 and windowed Stage 2 on the source observations, graph settings."""
+    from nmt_ros.io.trial_bag import read_observations
+    from nmt_ros.model.jumper import default_model
+    from nmt_ros.nodes._streams import initial_activations
+    from nmt_ros.tracking.conditioning import ConditioningSettings, condition
+    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+
+    sk, mu = settings.get('skeletal_tracker', {}), settings.get('muscle_tracker', {})
+    model = default_model()
+    obs = read_observations(source)
+    cs = ConditioningSettings(angle_cutoff_hz=_float(sk, 'setting.angle_cutoff_hz', 10.0),
+                              force_cutoff_hz=_float(sk, 'setting.force_cutoff_hz', 50.0))
+    skt = SKTSettings()
+    skt = skt.with_(substeps=int(_float(sk, 'setting.substeps', skt.substeps)),
+                    bias_rate=_float(sk, 'setting.bias_rate', skt.bias_rate))
+    res = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, cs), skt,
+                _float(sk, 'setting.wrench_rate_hz', 1080.0))
+    out = {'t': res.t, 'tau': res.tau, 'status': res.status, 'epoch_ns': obs.info['epoch_ns']}
+    if res.ok:
+        th, thd, thdd = (model.batch(model.joint_angles, x)[0] for x in (res.q, res.qd, res.qdd))
+        a0, _ = initial_activations(model, th[0], res.tau[0], thd[0])
+        stride = _float(mu, 'setting.window_stride_s', 0.01)
+        stage2 = load_stage2_settings(saturation=mu.get('setting.saturation', 'plan'))
+        s2 = NeuromuscularTracker(model, stage2).track(
+            res.t, res.tau, th, thd, thdd, a0, mode='windowed',
+            window_length=_float(mu, 'setting.window_length_s', 0.1),
+            window_stride=stride if stride > 0 else None)
+        out.update(f=s2.f, t2=s2.t)
+    return out
+
+
+def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None = None,
+                  *, batch: bool = True) -> dict[str, Any]:
+    """The demo's numbers (see the module docstring) as a JSON-ready dict."""
+    from nmt_ros.model.jumper import default_model
+    from nmt_ros.study.metrics import jump_from
+    from nmt_ros.tracking.skeletal_tracker import liftoff_time
+
+    recording = Path(recording)
+    statuses = final_statuses(recording)
+    summary: dict[str, Any] = {'recording': str(recording)}
+    summary['counts'] = counts = message_counts(recording, statuses)
+    summary['lossless'] = all(c['published'] == c['recorded'] for c in counts.values()
+                              if c['published'] >= 0)
+    obs = topic_times(recording, WRENCH_TOPIC)
+    summary['latency_ms'] = {
+        'joint_torques': latency_ms(topic_times(recording, TORQUES), obs),
+        'muscle_forces': latency_ms(topic_times(recording, FORCES), obs)}
+    summary['cpu'] = {n: {'share': round(_float(statuses.get(n, {}), 'cpu_share'), 3),
+                          'cpu_s': round(_float(statuses.get(n, {}), 'cpu_s_active'), 3),
+                          'wall_s': round(_float(statuses.get(n, {}), 'wall_s_active'), 3)}
+                      for n in NODES if n in statuses}
+    summary['settings'] = {n: {k[len('setting.'):]: v for k, v in statuses.get(n, {}).items()
+                               if k.startswith('setting.')} for n in NODES if n in statuses}
+    summary['node_states'] = {n: statuses[n].get('state', '?') for n in NODES if n in statuses}
+    rejected = {n: int(_float(statuses.get(n, {}), 'rejected_total', 0)) for n in NODES
+                if n in statuses}
+    summary['rejected'] = rejected
+
+    model = default_model()
+    jt = read_arrays(recording, TORQUES)
+    names = {t.name for t in bag_info(recording).topics}
+    epoch = int(statuses.get('skeletal_tracker', {}).get('epoch_ns', jt.stamp_ns[0]))
+    t = (jt.stamp_ns - epoch) * 1e-9
+    tau = _columns(jt, JOINTS, 'effort')
+    forces = None
+    if FORCES in names and len(read_arrays(recording, FORCES)):
+        fs = read_arrays(recording, FORCES)
+        forces = (fs.stamp_ns, _columns(fs, MUSCLES, 'effort'))
+    tracked = {}
+    if COORDS in names and GROUND in names:
+        gc, gw = read_arrays(recording, COORDS), read_arrays(recording, GROUND)
+        tg = (gc.stamp_ns - epoch) * 1e-9
+        lo = liftoff_time((gw.stamp_ns - epoch) * 1e-9, gw.force[:, 1])
+        tracked = jump_from(model, tg, _columns(gc, Q_NAMES, 'position'),
+                            _columns(gc, Q_NAMES, 'velocity'), lo)
+    summary['tracked'] = {k: round(v, 4) for k, v in tracked.items()}
+    if source is None:
+        return summary
+    from nmt_ros.io.trial_bag import has_truth, read_truth
+
+    if has_truth(source):
+        truth = read_truth(source)
+        actual = jump_from(model, truth.t, truth.q, truth.qd, truth.liftoff_s)
+        summary['actual'] = {k: round(v, 4) for k, v in actual.items()}
+        contact = t <= truth.liftoff_s
+        idx = np.clip(np.rint(np.interp(t, truth.t, np.arange(truth.t.size))).astype(int), 0,
+                      truth.t.size - 1)
+        peaks = np.abs(truth.tau[truth.t <= truth.liftoff_s]).max(axis=0)
+        err = _rms(tau[contact] - truth.tau[idx[contact]])
+        summary['vs_truth'] = {'torque_rms_nm': _named(JOINTS, err, 2),
+                               'torque_rms_pct_peak': _named(JOINTS, 100 * err / peaks, 2)}
+        if forces is not None:
+            tf = (forces[0] - epoch) * 1e-9
+            fidx = np.clip(np.rint(np.interp(tf, truth.t, np.arange(truth.t.size))).astype(int),
+                           0, truth.t.size - 1)
+            fc = tf <= truth.liftoff_s
+            ferr = _rms(forces[1][fc] - truth.f[fidx[fc]])
+            summary['vs_truth']['muscle_force_rms_n'] = _named(MUSCLES, ferr, 1)
+            summary['vs_truth']['muscle_force_rms_pct_f0'] = _named(
+                MUSCLES, 100 * ferr / model.p.muscles.f0, 2)
+    if batch:
+        ref = batch_reference(source, statuses)
+        keys = np.rint(ref['t'] * 1e9).astype(np.int64) + ref['epoch_ns']
+        pos = np.searchsorted(keys, jt.stamp_ns)
+        ok = (pos < keys.size) & (keys[np.clip(pos, 0, keys.size - 1)] == jt.stamp_ns)
+        peak = np.abs(ref['tau']).max(axis=0)
+        d = _rms(tau[ok] - ref['tau'][pos[ok]])
+        summary['vs_batch'] = {'samples': int(ok.sum()), 'of': int(keys.size),
+                               'torque_rms_pct_peak': _named(JOINTS, 100 * d / peak, 3)}
+        if forces is not None and 'f' in ref:
+            k2 = np.rint(ref['t2'] * 1e9).astype(np.int64) + ref['epoch_ns']
+            p2 = np.searchsorted(k2, forces[0])
+            ok2 = (p2 < k2.size) & (k2[np.clip(p2, 0, k2.size - 1)] == forces[0])
+            d2 = _rms(forces[1][ok2] - ref['f'][p2[ok2]]) / model.p.muscles.f0
+            summary['vs_batch']['muscle_force_rms_pct_f0'] = _named(MUSCLES, 100 * d2, 3)
+            summary['vs_batch']['muscle_samples'] = int(ok2.sum())
+    return summary
+
+
+def format_summary(s: Mapping[str, Any]) -> str:
+    """The demo's printed report."""
+    lines = []
+    if 'actual' in s or s.get('tracked'):
+        act = s.get('actual', {}).get('jump_height_m', math.nan)
+        trk = s.get('tracked', {}).get('jump_height_m', math.nan)
+        lines.append(f'jump height: tracked motion {trk:.3f} m, actual (truth) {act:.3f} m '
+                     f'(difference {100 * (trk - act):+.1f} cm)')
+    vt = s.get('vs_truth')
+    if vt:
+        lines.append('joint torques vs truth (RMS, contact phase): ' + ', '.join(
+            f'{j} {vt["torque_rms_nm"][j]:.1f} N m ({vt["torque_rms_pct_peak"][j]:.1f} % peak)'
+            for j in JOINTS))
+        if 'muscle_force_rms_n' in vt:
+            lines.append('muscle forces vs truth (RMS, contact phase, N / % F0): ' + ', '.join(
+                f'{m} {vt["muscle_force_rms_n"][m]:.0f}/{vt["muscle_force_rms_pct_f0"][m]:.1f}'
+                for m in MUSCLES))
+    vb = s.get('vs_batch')
+    if vb:
+        line = ('live graph vs batch trackers: torques ' + ', '.join(
+            f'{j} {v:.2f}' for j, v in vb['torque_rms_pct_peak'].items()) + ' % of peak')
+        if 'muscle_force_rms_pct_f0' in vb:
+            line += (f'; muscle forces max {max(vb["muscle_force_rms_pct_f0"].values()):.2f} '
+                     '% F0 RMS')
+        lines.append(line)
+    lat = s.get('latency_ms', {})
+    for name, v in lat.items():
+        lines.append(f'latency observation -> {name}: p50 {v["p50_ms"]:.1f} ms, '
+                     f'p99 {v["p99_ms"]:.1f} ms, max {v["max_ms"]:.1f} ms ({v["n"]} samples)')
+    cpu = s.get('cpu', {})
+    if cpu:
+        lines.append('CPU share while active (1.0 = one core): ' + ', '.join(
+            f'{n} {v["share"]:.2f}' for n, v in cpu.items()))
+    counts = s.get('counts', {})
+    lines.append('messages (published / recorded):' + ('' if s.get('lossless') else
+                                                        '  MISMATCH'))
+    for topic, c in counts.items():
+        pub = c['published'] if c['published'] >= 0 else '?'
+        lines.append(f'  {topic:42s} {pub!s:>6} / {c["recorded"]:<6}')
+    rej = {n: v for n, v in s.get('rejected', {}).items() if v}
+    if rej:
+        lines.append(f'rejected samples: {rej}')
+    return '\n'.join(lines)

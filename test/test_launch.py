@@ -1,0 +1,102 @@
+"""The graph as separate processes: ``nmt launch`` end to end on the shipped (short) bag, at
+1x and faster, SIGINT during a launch, ``nmt run`` of single nodes and a killed recorder."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from nmt_ros.io.bags import bag_info, read_raw, reindex
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[1]
+BAG = ROOT / 'bags' / 'reference_jump'
+NMT = [sys.executable, '-m', 'nmt_ros.cli.main']
+
+
+def nmt(*args, log: Path | None = None):
+    stdout = subprocess.PIPE if log is None else open(log, 'w')  # noqa: SIM115
+    return subprocess.Popen([*NMT, *map(str, args)], stdout=stdout, stderr=subprocess.STDOUT,
+                            text=True, env=dict(os.environ))
+
+
+def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and text in path.read_text(errors='replace'):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.parametrize('rate', [1.0, 4.0])
+def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
+    from nmt_ros.nodes.graph_report import graph_summary
+
+    record = tmp_path / 'rec'
+    proc = nmt('launch', '--record', record, '--rate', rate, '--log-dir', tmp_path / 'logs')
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out
+    assert 'graph finished' in out and 'problem' not in out
+    summary = graph_summary(record, BAG, batch=False)
+    assert summary['lossless'], summary['counts']
+    counts = summary['counts']
+    assert counts['/force_plate/wrench'] == {'published': 269, 'recorded': 269}
+    assert counts['/nmt/muscle/forces']['recorded'] == 262
+    assert set(summary['node_states'].values()) >= {'finished'}
+    lat = summary['latency_ms']
+    assert lat['joint_torques']['n'] == lat['muscle_forces']['n'] == 262
+    assert 0 < lat['joint_torques']['p50_ms'] < lat['muscle_forces']['p50_ms']
+    params = (tmp_path / 'logs' / 'params.yaml').read_text()
+    assert 'expected_subscribers: 2' in params and f'rate: {rate}' in params
+
+
+def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
+    record, logs = tmp_path / 'rec', tmp_path / 'logs'
+    proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)  # ~5 s replay
+    try:
+        assert wait_for_text(logs / 'recorder.log', 'recording /nmt/muscle/forces', 60.0)
+        time.sleep(2.0)   # well into the replay
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out
+    info = bag_info(record)              # metadata.yaml written: the bag was finalised
+    counts = {t.name: t.message_count for t in info.topics}
+    assert 0 < counts['/force_plate/wrench'] < 269
+    assert sum(1 for _ in read_raw(record, ['/mocap/segment_angles'])) == counts[
+        '/mocap/segment_angles']
+
+
+def test_nmt_run_single_nodes_and_a_killed_recorder(tmp_path):
+    record, log = tmp_path / 'rec', tmp_path / 'recorder.log'
+    recorder = nmt('run', 'recorder', '--ros-args', '-p', f'output:={record}', '-p',
+                   'flush_period_s:=0.2', log=log)
+    player = None
+    try:
+        player = nmt('run', 'observation_publisher', '--ros-args', '-p', f'bag:={BAG}',
+                     '-p', 'rate:=0.1', '-p', 'expected_subscribers:=1', '-p',
+                     'ack_timeout_s:=1.0')
+        assert wait_for_text(log, 'recording /force_plate/wrench', 30.0)
+        time.sleep(1.5)                  # the replay (2.5 s at 0.1x) is under way
+        recorder.kill()                  # no chance to finalise
+        recorder.wait(timeout=10)
+        out, _ = player.communicate(timeout=60)
+        assert player.returncode in (0, 1), out   # 1: the recorder vanished before acking
+    finally:
+        for p in (recorder, player):
+            if p is not None and p.poll() is None:
+                p.kill()
+    assert not (record / 'metadata.yaml').exists()
+    info = reindex(record)               # `nmt bag reindex`: complete chunks are kept
+    counts = {t.name: t.message_count for t in info.topics}
+    assert counts.get('/force_plate/wrench', 0) > 0
+    assert bag_info(record).message_count == info.message_count
