@@ -165,3 +165,26 @@ def test_opensim_inverse_dynamics_on_the_truth_files_gives_the_truth_torques(tmp
         worst = truth.t[contact][np.argmax(np.abs(tau_os[contact] - truth.tau[contact, j]))]
         print(f'OpenSim ID vs truth, {name}: max error {100 * err:.3f} % of peak at {worst:.4f} s')
         assert err < 0.02, (name, err)
+
+
+def test_nmt_reference_quick_writes_the_bag_and_its_companions(tmp_path):
+    """`nmt reference --quick`: a complete, readable reference folder (bag + files + figure)."""
+    proc = subprocess.run([sys.executable, '-m', 'nmt_ros.cli.main', 'reference', '--out',
+                           str(tmp_path), '--quick', '--seed', '7'], cwd=REPO,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    folder = tmp_path / 'reference_jump'
+    for name in ('metadata.yaml', 'reference_jump_0.mcap', 'reference.json', 'truth.sto',
+                 'truth_states.sto', 'truth_grf.mot', 'truth_grf.xml', 'reference_jump.png'):
+        assert (folder / name).stat().st_size > 100, name
+    record = json.loads((folder / 'reference.json').read_text())
+    assert record['po']['converged'] and record['po']['iterations'] > 0
+    assert record['quick'] is True
+    assert 'jump height' in proc.stdout and 'CPU' in proc.stdout
+    obs = read_observations(folder)
+    assert obs.t_angles.size > 20 and np.isfinite(obs.wrench).all()
+    # A second run into the same place refuses to overwrite without --force.
+    again = subprocess.run([sys.executable, '-m', 'nmt_ros.cli.main', 'reference', '--out',
+                            str(tmp_path), '--quick'], cwd=REPO, capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 2 and 'exists' in again.stderr
