@@ -11,7 +11,9 @@
    (fed the streamed Stage-1 output) vs the batch windowed Stage 2 on the batch Stage-1
    output (same H), and the batch windowed vs the full horizon, max over muscles of RMS/F0.
 2. The graph as processes (``nmt launch --record``), for the accuracy-first and the
-   low-latency parameter files, at each replay rate: latency from an observation's
+   low-latency parameter files, at each replay rate, on the bag and on the same jump preceded
+   by ``--quiet-start`` seconds of quiet standing (so the start-up of the trackers, about
+   0.1 s for the initial state, is over when the jump begins): latency from an observation's
    publication to the torque / muscle-force estimate for that instant (p50/p99/max), each
    node's CPU share while active, messages published == recorded, wall time. The fastest
    rate at which every message was recorded and every node finished is reported.
@@ -130,11 +132,28 @@ def accuracy_tables(bag: Path) -> None:
           '+ H + up to a stride')
 
 
-def graph_tables(bag: Path, rates: list[float], repeat: int) -> None:
+def padded_bag(bag: Path, pad_s: float, out: Path) -> Path:
+    """The bag's observations after ``pad_s`` of quiet standing (the first sample held), as a
+    lab trial starts: the tracker's start-up (initial state) is then over before the jump."""
+    from nmt_ros.io.trial_bag import write_trial_bag
+    from nmt_ros.study.trial import Observations
+
+    obs = read_observations(bag)
+    na, nw = int(round(pad_s * 120)), int(round(pad_s * 1080))
+    angles = np.vstack([np.repeat(obs.angles[:1], na, axis=0), obs.angles])
+    wrench = np.vstack([np.repeat(obs.wrench[:1], nw, axis=0), obs.wrench])
+    padded = Observations(t_angles=np.arange(angles.shape[0]) / 120.0, angles=angles,
+                          t_wrench=np.arange(wrench.shape[0]) / 1080.0, wrench=wrench,
+                          frame_id=obs.frame_id)
+    write_trial_bag(out, padded)
+    return out
+
+
+def graph_tables(bag: Path, rates: list[float], repeat: int, label: str = '') -> None:
     from nmt_ros.nodes.graph_report import graph_summary
 
-    print('\n2. the graph as processes (nmt launch --record), latency from an observation\'s '
-          'publication [ms]')
+    print(f'\n2. the graph as processes (nmt launch --record){label}, latency from an '
+          'observation\'s publication [ms]')
     header = (f'{"params":>12} {"rate":>5} | torques p50 p99 max | forces p50 p99 max | '
               'CPU share obs/skel/musc/rec | lossless | wall s')
     print(header)
@@ -149,7 +168,7 @@ def graph_tables(bag: Path, rates: list[float], repeat: int) -> None:
                     if not (rec / 'metadata.yaml').exists():
                         print(f'{name:>12} {rate:5g} | failed: {res.problems}')
                         continue
-                    s = graph_summary(rec, bag, batch=False)
+                    s = graph_summary(rec, None, batch=False)
                 lt, lf = s['latency_ms']['joint_torques'], s['latency_ms']['muscle_forces']
                 cpu = '/'.join(f'{s["cpu"].get(n, {}).get("share", float("nan")):.2f}'
                                for n in ('observation_publisher', 'skeletal_tracker',
@@ -174,6 +193,10 @@ def main() -> int:
     parser.add_argument('--repeat', type=int, default=1)
     parser.add_argument('--skip-graph', action='store_true')
     parser.add_argument('--skip-accuracy', action='store_true')
+    parser.add_argument('--quiet-start', type=float, default=0.4, metavar='S',
+                        help='also run the graph on the bag preceded by S s of quiet standing '
+                             '(0: do not; Stage 1 itself loses control after ~0.7 s of a held '
+                             'first sample, also in batch)')
     args = parser.parse_args()
     from nmt_ros.cli.main import ros_environment_defaults
 
@@ -182,6 +205,11 @@ def main() -> int:
         accuracy_tables(args.bag)
     if not args.skip_graph:
         graph_tables(args.bag, args.rates, args.repeat)
+        if args.quiet_start > 0:
+            with tempfile.TemporaryDirectory(prefix='nmt_bench_bag_') as tmp:
+                bag = padded_bag(args.bag, args.quiet_start, Path(tmp) / 'padded')
+                graph_tables(bag, args.rates, args.repeat,
+                             f' on the jump after {args.quiet_start:g} s of quiet standing')
     return 0
 
 

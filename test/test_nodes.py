@@ -126,7 +126,7 @@ def _observations():
 
 
 @pytest.mark.slow
-def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context):
+def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_path):
     from geometry_msgs.msg import WrenchStamped
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -134,13 +134,18 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context):
 
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
+    from nmt_ros.io.bags import bag_info, read_raw
     from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.recorder import RecorderNode
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
         lookahead_s=0.03, substeps=1, idle_flush_s=0.5))
+    record = tmp_path / 'rec'
+    rec = RecorderNode(context=ros_context, parameter_overrides=params(
+        output=str(record), topics=[ANGLES, WRENCH, TORQUES], scan_period_s=0.02))
     probe = rclpy.create_node('probe', context=ros_context)
     source = rclpy.create_node('lab', context=ros_context)
     status = StatusProbe(probe)
@@ -149,11 +154,11 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context):
     pub_a = source.create_publisher(JointState, ANGLES, data_qos(5000))
     pub_w = source.create_publisher(WrenchStamped, WRENCH, data_qos(5000))
     executor = SingleThreadedExecutor(context=ros_context)
-    for n in (skel, probe, source):
+    for n in (skel, probe, source, rec):
         executor.add_node(n)
     try:
-        assert spin_until(executor, lambda: pub_a.get_subscription_count() == 1
-                          and pub_w.get_subscription_count() == 1, 10.0)
+        assert spin_until(executor, lambda: pub_a.get_subscription_count() == 2
+                          and pub_w.get_subscription_count() == 2, 10.0)
         # a 100 ms hole in both streams, between 0.10 and 0.20 s
         keep_a = (obs.t_angles < 0.1) | (obs.t_angles >= 0.2)
         keep_w = (obs.t_wrench < 0.1) | (obs.t_wrench >= 0.2)
@@ -215,14 +220,66 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context):
         # still alive: a new lab publisher starts a new trial
         pub_a = source.create_publisher(JointState, ANGLES, data_qos(5000))
         pub_w = source.create_publisher(WrenchStamped, WRENCH, data_qos(5000))
-        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
+        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 2, 10.0)
         later = 5_000_000_000
         for i in range(3):
             pub_a.publish(to_joint_state(sa[i] + later, segs, obs.angles[i]))
             pub_w.publish(to_planar_wrench(sw[i] + later, 'foot_com', obs.wrench[i]))
         assert spin_until(executor, lambda: skel.book.trial == 2, 5.0)
+        rec.on_shutdown(False)
     finally:
-        for n in (skel, probe, source):
+        for n in (skel, probe, source, rec):
+            executor.remove_node(n)
+            n.destroy_node()
+        executor.shutdown()
+    # the recording kept everything, bad samples included, and is readable
+    counts = {t.name: t.message_count for t in bag_info(record).topics}
+    assert counts[ANGLES] == int(keep_a.sum()) + 2 + 3
+    assert counts[WRENCH] == int(keep_w.sum()) + 3 + 3
+    assert counts[TORQUES] == len(outputs) > 0
+    assert sum(1 for _ in read_raw(record, [ANGLES])) == counts[ANGLES]
+
+
+def test_skeletal_tracker_reports_loss_of_control(ros_context):
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+
+    obs, sa, sw = _observations()
+    skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
+        lookahead_s=0.02, substeps=1, idle_flush_s=0.3, max_angle_error_deg=0.001))
+    probe = rclpy.create_node('probe3', context=ros_context)
+    status = StatusProbe(probe)
+    outputs = []
+    probe.create_subscription(JointState, TORQUES, outputs.append, data_qos(5000))
+    from geometry_msgs.msg import WrenchStamped
+    pub_a = probe.create_publisher(JointState, ANGLES, data_qos(5000))
+    pub_w = probe.create_publisher(WrenchStamped, WRENCH, data_qos(5000))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(skel)
+    executor.add_node(probe)
+    try:
+        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
+        for i in range(12):
+            pub_a.publish(to_joint_state(sa[i], ['foot', 'shank', 'thigh', 'hat'],
+                                         obs.angles[i]))
+        for i in range(100):
+            pub_w.publish(to_planar_wrench(sw[i], 'foot_com', obs.wrench[i]))
+        assert spin_until(executor, lambda: not skel.tracking
+                          and skel.status.state == 'lost_control', 10.0), skel.status.reports()[0]
+        spin_until(executor, lambda: False, 0.1)
+        text = status.text('/skeletal_tracker')
+        assert 'loss of control at t = ' in text and 'segment angle' in text
+        assert "'state': 'finished'" in status.text('/skeletal_tracker: stream')
+        assert any(r.level == 2 for r in status.records if r.name == '/skeletal_tracker')
+        assert len(outputs) < 100          # the estimates stop where control was lost
+    finally:
+        for n in (skel, probe):
             executor.remove_node(n)
             n.destroy_node()
         executor.shutdown()
@@ -300,20 +357,17 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
 # --------------------------------------------------------------------------- recorder, config
 
 def test_recorder_adapts_qos_like_rosbag2():
-    from rclpy.qos import (
-        DurabilityPolicy,
-        QoSProfile,
-        ReliabilityPolicy,
-        qos_profile_sensor_data,
-    )
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     from nmt_ros.nodes.recorder import adapted_qos, is_hidden
 
     reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sensor = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)
     assert adapted_qos([reliable], 100).reliability == ReliabilityPolicy.RELIABLE
     assert adapted_qos([reliable], 100).durability == DurabilityPolicy.TRANSIENT_LOCAL
-    mixed = adapted_qos([reliable, qos_profile_sensor_data], 100)
+    mixed = adapted_qos([reliable, sensor], 100)
     assert mixed.reliability == ReliabilityPolicy.BEST_EFFORT
     assert mixed.durability == DurabilityPolicy.VOLATILE and mixed.depth == 100
     assert is_hidden('/a/_private') and not is_hidden('/nmt/status')
@@ -322,7 +376,7 @@ def test_recorder_adapts_qos_like_rosbag2():
 def test_recorder_records_raw_with_publisher_times(ros_context, tmp_path):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import qos_profile_sensor_data
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
     from nmt_ros.io.bags import bag_info, read_bag, read_raw
@@ -334,7 +388,8 @@ def test_recorder_records_raw_with_publisher_times(ros_context, tmp_path):
         output=str(out), exclude=['/rosout', '/parameter_events'], scan_period_s=0.02))
     talker = rclpy.create_node('talker', context=ros_context)
     pubs = {'/reliable': talker.create_publisher(String, '/reliable', data_qos(100)),
-            '/sensor': talker.create_publisher(String, '/sensor', qos_profile_sensor_data)}
+            '/sensor': talker.create_publisher(String, '/sensor', QoSProfile(
+                depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))}
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(rec)
     executor.add_node(talker)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+import copy
 from dataclasses import dataclass
 import os
 import sys
@@ -77,7 +78,8 @@ def choose_qos(node: Any, topic: str, *, profile: str | None = None, depth: int 
     """The subscription QoS (ros2cli's rule; explicit settings win)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSPresetProfiles, ReliabilityPolicy
     explicit = any(v is not None for v in (profile, depth, history, reliability, durability))
-    qos = QoSPresetProfiles.get_from_short_key(profile or 'sensor_data')
+    # a copy: the preset is rclpy's module-level profile object, shared by the whole process
+    qos = copy.copy(QoSPresetProfiles.get_from_short_key(profile or 'sensor_data'))
     if explicit:
         if depth is not None:
             qos.depth = depth

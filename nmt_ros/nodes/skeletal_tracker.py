@@ -81,6 +81,12 @@ class SkeletalTrackerNode(NmtNode):
                           'costs twice the CPU for < 0.5 % of peak torque)', low=1, high=64)
         self.bias_rate = p('bias_rate', SKTSettings().bias_rate, 'moment-bias estimator rate '
                            '[1/s] (0 = off)', low=0.0, high=1000.0)
+        self.max_angle_error_deg = p('max_angle_error_deg', SKTSettings().max_angle_error_deg,
+                                     'loss of control: segment-angle error above this [deg]',
+                                     low=0.0, high=360.0)
+        self.max_force_error_bw = p('max_force_error_bw', SKTSettings().max_force_error_bw,
+                                    'loss of control: vertical force error above this [BW]',
+                                    low=0.0, high=100.0)
         self.wrench_frame = p('wrench_frame', 'foot_com', "required header.frame_id of the "
                               "force-plate wrench ('' = any)")
         self.epoch_ns = p('epoch_ns', 0, 'header stamp of trial time 0 [ns] (0 = the first '
@@ -101,7 +107,10 @@ class SkeletalTrackerNode(NmtNode):
                             '0 = after every arrival)', low=0.0, high=1.0)
         self.poll_period_s = p('poll_period_s', 0.01, 'and at least this often [s]', low=0.001,
                                high=1.0)
-        self.settings = (SKTSettings().with_(substeps=self.substeps, bias_rate=self.bias_rate))
+        self.settings = SKTSettings().with_(
+            substeps=self.substeps, bias_rate=self.bias_rate,
+            max_angle_error_deg=self.max_angle_error_deg,
+            max_force_error_bw=self.max_force_error_bw)
         self.conditioning = ConditioningSettings(
             angle_cutoff_hz=self.angle_cutoff_hz, force_cutoff_hz=self.force_cutoff_hz,
             lookahead_s=self.lookahead_s, window_s=self.filter_window_s)
