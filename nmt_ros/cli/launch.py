@@ -136,6 +136,16 @@ class GraphRun:
     problems: list[str] = field(default_factory=list)
 
 
+def _last_error(log: Path) -> str:
+    """': <last ERROR line>' of a node's log, or ''."""
+    try:
+        lines = log.read_text(errors='replace').splitlines()
+    except OSError:
+        return ''
+    errors = [line for line in lines if '[ERROR]' in line or 'Error' in line]
+    return f': {errors[-1].strip()[-200:]}' if errors else ''
+
+
 def _lower_priority() -> None:
     """The recorder yields the CPU to the trackers (its queues are deep; latency is theirs)."""
     try:
@@ -246,7 +256,9 @@ def run_graph(*, bag: str | os.PathLike | None = None, rate: float = 1.0,
     codes = {n: p.returncode for n, p in procs.items()}
     for n, rc in codes.items():
         if rc not in (0, None) and not interrupted:
-            problems.append(f'{n} exited with code {rc} (log: {log_dir / (n + ".log")})')
+            why = 'stopped' if rc < 0 else f'exited with code {rc}'
+            problems.append(f'{n} {why}{_last_error(log_dir / (n + ".log"))} '
+                            f'(log: {log_dir / (n + ".log")})')
     record_path = Path(record) if record is not None else None
     if record_path is not None and not (record_path / 'metadata.yaml').exists():
         problems.append(f'the recording {record_path} has no metadata.yaml')
