@@ -5,7 +5,7 @@
 Reference: the shipped reference jump (a maximum-height jump found by parameter optimisation:
 prime movers at u = 1 much of the push-off). Stage 2 gets the TRUE joint torques and joint
 kinematics (theta_ddot from the model's dynamics at the true state), a0 from the first torque
-sample (``activation_init.rest_activations``, no truth), and is compared with the true muscle
+sample (``nmt_ros.model.squat.rest_activations``, no truth), and is compared with the true muscle
 forces. Falls back to the tests' synthetic squat jump if the bag is missing. Tables:
   1. full horizon, saturation 'plan' (default) and 'clip' (the paper): torque RMS per joint
      over the contact phase (% of the joint's peak), forces vs truth per muscle (RMS N, % F0,
@@ -28,9 +28,9 @@ import time
 
 import numpy as np
 
+from nmt_ros.model.squat import rest_activations
 from nmt_ros.tracking import neuromuscular_tracker as nt
 from nmt_ros.tracking import riccati as rc
-from nmt_ros.tracking.activation_init import rest_activations
 
 DEFAULT_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 

@@ -9,9 +9,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from nmt_ros.model.jumper import default_model
+from nmt_ros.model.squat import rest_activations
 from nmt_ros.tracking import neuromuscular_tracker as nt
 from nmt_ros.tracking import riccati as rc
-from nmt_ros.tracking.activation_init import rest_activations
 
 JUMP_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
@@ -390,3 +390,15 @@ def test_rest_activations_from_the_first_torque_sample(tracker, jump):
     impossible = rest_activations(tracker.model, theta[0], 5 * tau[0])
     assert not impossible.exact and np.all((impossible.a >= 0) & (impossible.a <= 1))
     assert np.abs(impossible.residual).max() > 1.0
+
+
+def test_final_push_without_new_samples_is_harmless(tracker, jump):
+    """A live node may signal the end of the data with no sample left to add."""
+    t, tau, th, thd, thdd = (x[:60] for x in jump['inputs'])
+    stream = tracker.start_stream(jump['truth'].a[0], float(t[1] - t[0]))
+    stream, steps = tracker.push(stream, t, tau, th, thd, thdd)
+    empty = np.zeros((0, 3))
+    stream, final_steps = tracker.push(stream, np.zeros(0), empty, empty, empty, empty,
+                                       final=True)
+    assert final_steps   # the windows held back for look-ahead are completed at the end
+    assert all(np.isfinite(s.f).all() for s in steps + final_steps)

@@ -69,7 +69,11 @@ def test_estimates_bag_is_stamped_with_observation_time(reproduced):
     assert set(tq.stamp_ns) <= set(obs_stamps)          # every estimate at an observation time
     forces = read_arrays(est, '/nmt/muscle/forces')
     assert forces.names == MUSCLES and np.isfinite(forces.effort).all()
-    assert (forces.effort > -1.0).all()                  # muscles pull
+    # Muscles pull: the DeGroote fibre damping (and its force-velocity curve beyond the
+    # maximum shortening speed) allow at most a small push, as in the truth (VAS -2.2 % F0).
+    from nmt_ros.model.jumper import default_model
+    f0 = default_model().p.muscles.f0
+    assert (forces.effort > -0.03 * f0).all()
 
 
 def test_track_works_on_a_bag_without_truth(tmp_path):

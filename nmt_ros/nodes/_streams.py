@@ -13,7 +13,7 @@ Stage 2 (``NeuromuscularTracker.push``). Joint accelerations are not published b
 skeletal tracker: they are central differences of the joint rates here (one sample, 0.9 ms,
 of delay). With inputs at 1080 Hz Stage 2 needs no internal substeps, and there the
 accelerations only enter the reported (unclipped) Eq. 9 excitation, not the forces.
-Initial activations: ``nmt_ros.tracking.activation_init.rest_activations`` for the first
+Initial activations: ``nmt_ros.model.squat.rest_activations`` for the first
 torque sample (the live node has no truth).
 """
 from __future__ import annotations
@@ -25,16 +25,11 @@ import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.conditioning import (
-    ConditionedObservations,
     ConditioningSettings,
     FixedLagConditioner,
-    SmoothSignal,
 )
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, StreamState
 from nmt_ros.tracking.skeletal_tracker import SKTSettings, Stage1Stream
-
-_MIN_SAMPLES = 6  # the quintic spline of the conditioner needs 6 samples per stream
-
 
 # --------------------------------------------------------------------------- Stage 1
 
@@ -55,22 +50,6 @@ def _stage1_output(out: dict) -> Stage1Output:
     Q = out['Q']
     return Stage1Output(t=out['t'], q=Q[:, :6], qd=Q[:, 6:], qdd=out['qdd'], tau=out['tau'],
                         s=out['y'][:, 4:7], bias=out['b'])
-
-
-class _Window:
-    """The samples a FixedLagConditioner keeps (same trimming rule), for the final flush."""
-
-    def __init__(self, keep_s: float) -> None:
-        self.keep_s = keep_s
-        self.t: deque[float] = deque()
-        self.y: deque[np.ndarray] = deque()
-
-    def add(self, t: float, y: np.ndarray) -> None:
-        self.t.append(float(t))
-        self.y.append(np.asarray(y, dtype=float))
-        while self.t and self.t[-1] - self.t[0] > self.keep_s:
-            self.t.popleft()
-            self.y.popleft()
 
 
 class Stage1Runner:
@@ -95,8 +74,6 @@ class Stage1Runner:
         cs = self.conditioning
         self.conditioner = FixedLagConditioner(cs, self.angle_rate_hz, self.wrench_rate_hz)
         self.stream = Stage1Stream(self.model, self.conditioner, self.skt, self.wrench_rate_hz)
-        keep = cs.window_s + cs.lookahead_s + 0.1
-        self._windows = (_Window(keep), _Window(keep))
         self.finished = False
 
     @property
@@ -113,11 +90,9 @@ class Stage1Runner:
 
     def add_angles(self, t: float, theta: np.ndarray) -> None:
         self.conditioner.add_angles(t, theta)
-        self._windows[0].add(t, theta)
 
     def add_wrench(self, t: float, s: np.ndarray) -> None:
         self.conditioner.add_wrench(t, s)
-        self._windows[1].add(t, s)
 
     def poll(self) -> Stage1Output | None:
         """Outputs that became final since the last call (None if none)."""
@@ -131,16 +106,9 @@ class Stage1Runner:
         if self.finished:
             return None
         self.finished = True
-        wa, ww = self._windows
-        if len(wa.t) < _MIN_SAMPLES or len(ww.t) < _MIN_SAMPLES or self.stream.status != 'ok':
+        if self.stream.status != 'ok':
             return None
-        cs = self.conditioning
-        whole = ConditionedObservations(
-            angles=SmoothSignal(np.array(wa.t), np.array(wa.y), self.angle_rate_hz,
-                                cs.angle_cutoff_hz, cs.order),
-            wrench=SmoothSignal(np.array(ww.t), np.array(ww.y), self.wrench_rate_hz,
-                                cs.force_cutoff_hz, cs.order))
-        self.stream.conditioner = whole
+        self.conditioner.close()   # end of data: every remaining instant becomes final
         out = self.stream.poll()
         return None if out is None else _stage1_output(out)
 
@@ -164,9 +132,9 @@ class Stage2Output:
 def initial_activations(model: JumperModel, theta: np.ndarray, tau: np.ndarray,
                         theta_dot: np.ndarray | None = None) -> tuple[np.ndarray, str | None]:
     """(a0[9], problem): the activations that produce the first torque sample
-    (``nmt_ros.tracking.activation_init.rest_activations``); ``problem`` says when they only
+    (``nmt_ros.model.squat.rest_activations``); ``problem`` says when they only
     approximate it (bounded least squares) or could not be computed (zeros then)."""
-    from nmt_ros.tracking.activation_init import rest_activations
+    from nmt_ros.model.squat import rest_activations
 
     try:
         rest = rest_activations(model, theta, tau, theta_dot)

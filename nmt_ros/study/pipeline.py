@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.model.squat import static_activations
+from nmt_ros.model.squat import rest_activations
 from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
 from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
@@ -99,7 +99,7 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         # torques of Eq. 1 with qd = qdd = 0 and the springs' wrench), min sum a^2.
         s0 = model.call(model.contact_outputs, skt.q[0], np.zeros(6), skt.x0)[0]
         tau0, _ = model.inverse_dynamics(skt.q[0], np.zeros(6), np.zeros(6), s0[None])
-        a0, _ = static_activations(model, skt.q[0], tau0[0])
+        a0 = rest_activations(model, th[0], tau0[0]).a
         tracker = NeuromuscularTracker(model)
         stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
                                mode=settings.stage2_mode,

@@ -517,6 +517,8 @@ class NeuromuscularTracker:
         The first call (``ref`` None) fixes ``substeps`` (default: from the step of the first
         two samples, or 1 if only one sample has arrived and ``substeps`` is not given).
         """
+        if ref is not None and np.atleast_1d(t).size == 0:
+            return ref   # nothing new (e.g. a final push without samples)
         if ref is None:
             if substeps is None and np.atleast_1d(t).size < 2:
                 substeps = 1
@@ -801,7 +803,7 @@ class NeuromuscularTracker:
     def start_stream(self, a0: np.ndarray, dt: float) -> StreamState:
         """A fresh streaming state: initial activations a0 [m], input sample period dt [s].
 
-        (``activation_init.rest_activations`` gives a0 from the first torque sample.)
+        (``nmt_ros.model.squat.rest_activations`` gives a0 from the first torque sample.)
         """
         return StreamState(a0=np.asarray(a0, dtype=float), substeps=self.substeps_for(dt))
 
