@@ -43,3 +43,22 @@ def tmp_bag(tmp_path: Path):
         return tmp_path / f'{name}_{next(counter)}'
 
     return make
+
+
+_BATCH_SAMPLES: list[int] = []
+
+
+def batch_samples() -> int:
+    """Output samples of batch Stage 1 on the shipped bag (what a full live run must match:
+    every force-plate instant from t = 0 to a few ms after the tracked lift-off)."""
+    if not _BATCH_SAMPLES:
+        from nmt_ros.io.trial_bag import read_observations
+        from nmt_ros.model.jumper import default_model
+        from nmt_ros.tracking.conditioning import condition
+        from nmt_ros.tracking.skeletal_tracker import track
+
+        obs = read_observations(Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump')
+        res = track(default_model(), condition(obs.t_angles, obs.angles, obs.t_wrench,
+                                               obs.wrench))
+        _BATCH_SAMPLES.append(int(res.t.size))
+    return _BATCH_SAMPLES[0]

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+from conftest import batch_samples
 import pytest
 
 from nmt_ros.io.bags import bag_info, read_raw, reindex
@@ -48,10 +49,10 @@ def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
     assert summary['lossless'], summary['counts']
     counts = summary['counts']
     assert counts['/force_plate/wrench'] == {'published': 269, 'recorded': 269}
-    assert counts['/nmt/muscle/forces']['recorded'] == 262
+    assert counts['/nmt/muscle/forces']['recorded'] == batch_samples()
     assert set(summary['node_states'].values()) >= {'finished'}
     lat = summary['latency_ms']
-    assert lat['joint_torques']['n'] == lat['muscle_forces']['n'] == 262
+    assert lat['joint_torques']['n'] == lat['muscle_forces']['n'] == batch_samples()
     assert 0 < lat['joint_torques']['p50_ms'] < lat['muscle_forces']['p50_ms']
     params = (tmp_path / 'logs' / 'params.yaml').read_text()
     assert 'expected_subscribers: 2' in params and f'rate: {rate}' in params
