@@ -162,7 +162,7 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     """The demo's numbers (see the module docstring) as a JSON-ready dict."""
     from nmt_ros.model.jumper import default_model
     from nmt_ros.study.metrics import jump_from
-    from nmt_ros.tracking.skeletal_tracker import liftoff_time
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings, liftoff_time
 
     recording = Path(recording)
     statuses = final_statuses(recording)
@@ -199,7 +199,9 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     if COORDS in names and GROUND in names:
         gc, gw = read_arrays(recording, COORDS), read_arrays(recording, GROUND)
         tg = (gc.stamp_ns - epoch) * 1e-9
-        lo = liftoff_time((gw.stamp_ns - epoch) * 1e-9, gw.force[:, 1])
+        # the tracker's own lift-off rule: its force falls below the plate's noise level
+        lo = liftoff_time((gw.stamp_ns - epoch) * 1e-9, gw.force[:, 1],
+                          SKTSettings().liftoff_force_bw * model.p.body_weight)
         tracked = jump_from(model, tg, _columns(gc, Q_NAMES, 'position'),
                             _columns(gc, Q_NAMES, 'velocity'), lo)
     summary['tracked'] = {k: round(v, 4) for k, v in tracked.items()}
