@@ -271,8 +271,9 @@ def initial_state(model: JumperModel, ref0: np.ndarray,
         span = np.r_[np.full(4, np.radians(15.0)), 0.05]
         flat = _flat_foot_angle(model)
         z0 = np.clip(np.r_[flat, ref0[1:4], -0.002], centre - span, centre + span)
+        # dogbox: 6 evaluations (1 ms) where trf takes ~400 on this small bounded problem.
         sol = least_squares(residual, z0, jac=jacobian, bounds=(centre - span, centre + span),
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                            method='dogbox', xtol=1e-12, ftol=1e-12, gtol=1e-12)
         q = pose(sol.x)
         return SKTState(t=0.0, q=q, qd=zero.copy(), b=0.0, x0=model.anchors_at(q))
 
