@@ -142,6 +142,9 @@ def test_bag_layout_counts_and_readers(truth):
     from mcap_ros2.reader import read_ros2_messages
     mcap = BAG / meta['relative_file_paths'][0]
     assert sum(1 for _ in read_ros2_messages(str(mcap))) == meta['message_count']
+    # ...and rclpy's own deserialisation (what ros2 bag play and the nodes use).
+    from nmt_ros.io.bags import read_bag
+    assert sum(1 for _ in read_bag(BAG)) == meta['message_count']
 
 
 def test_opensim_inverse_dynamics_on_the_truth_files_gives_the_truth_torques(tmp_path, truth):
