@@ -62,3 +62,30 @@ def batch_samples() -> int:
                                                obs.wrench))
         _BATCH_SAMPLES.append(int(res.t.size))
     return _BATCH_SAMPLES[0]
+
+
+REFERENCE_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
+
+
+@pytest.fixture(scope='session')
+def model():
+    """The jumper model built from the shipped data file (once per session)."""
+    from nmt_ros.model.jumper import default_model
+
+    return default_model()
+
+
+@pytest.fixture(scope='session')
+def truth():
+    """The shipped reference jump's truth (``/truth/*`` of bags/reference_jump)."""
+    from nmt_ros.io.trial_bag import read_truth
+
+    return read_truth(REFERENCE_BAG)
+
+
+@pytest.fixture(scope='session')
+def obs():
+    """The shipped reference jump's observations."""
+    from nmt_ros.io.trial_bag import read_observations
+
+    return read_observations(REFERENCE_BAG)

@@ -2,16 +2,10 @@
 from dataclasses import replace
 
 import numpy as np
-import pytest
 from scipy.integrate import solve_ivp
 
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import load_parameters
-
-
-@pytest.fixture(scope='module')
-def model():
-    return JumperModel()
 
 
 def random_states(n, rng, airborne=False):

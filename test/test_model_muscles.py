@@ -1,14 +1,7 @@
 """Muscles, paths and the static squat against independent truths."""
 import numpy as np
-import pytest
 
-from nmt_ros.model.jumper import default_model
 from nmt_ros.model.squat import solve_static_squat
-
-
-@pytest.fixture(scope='module')
-def model():
-    return default_model()
 
 
 def random_joint_states(n, rng):

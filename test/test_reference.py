@@ -10,8 +10,7 @@ import yaml
 
 from nmt_ros.io.bags import read_arrays
 from nmt_ros.io.opensim_files import read_table
-from nmt_ros.io.trial_bag import read_observations, read_truth
-from nmt_ros.model.jumper import default_model
+from nmt_ros.io.trial_bag import read_observations
 from nmt_ros.model.parameters import JOINTS, SEGMENTS
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.study.reference import POSettings, excitation_at, make_reference, simulate_excitations
@@ -20,14 +19,6 @@ REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / 'bags' / 'reference_jump'
 
 
-@pytest.fixture(scope='module')
-def model():
-    return default_model()
-
-
-@pytest.fixture(scope='module')
-def truth():
-    return read_truth(BAG)
 
 
 @pytest.fixture(scope='module')

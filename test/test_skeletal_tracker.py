@@ -2,10 +2,7 @@
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from nmt_ros.io.trial_bag import read_observations, read_truth
-from nmt_ros.model.jumper import default_model
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.tracking.conditioning import ConditioningSettings, FixedLagConditioner, condition
 from nmt_ros.tracking.ivd import inverse_dynamics_baseline, simulate_open_loop
@@ -20,19 +17,7 @@ from nmt_ros.tracking.skeletal_tracker import (
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
 
-@pytest.fixture(scope='module')
-def model():
-    return default_model()
 
-
-@pytest.fixture(scope='module')
-def truth():
-    return read_truth(BAG)
-
-
-@pytest.fixture(scope='module')
-def obs():
-    return read_observations(BAG)
 
 
 def contact_rms(t, est, truth, ref):

@@ -77,14 +77,11 @@ def trial_messages(obs: Observations, truth: Truth | None = None,
                 st, Q_NAMES, position=truth.q, velocity=truth.qd)),
             ('/truth/joint_torques', st, joint_states_from_arrays(
                 st, JOINTS, position=theta, velocity=theta_dot, effort=truth.tau)),
-            ('/truth/muscle_forces', st, joint_states_from_arrays(
-                st, MUSCLES, position=lmt, velocity=vmt, effort=truth.f)),
-            ('/truth/muscle_activations', st, joint_states_from_arrays(
-                st, MUSCLES, position=truth.a)),
-            ('/truth/muscle_excitations', st, joint_states_from_arrays(
-                st, MUSCLES, position=truth.u)),
             ('/truth/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, tf_, tt)),
         ]
+        out += _muscle_topics(('/truth/muscle_forces', '/truth/muscle_activations',
+                               '/truth/muscle_excitations'), st, lmt, vmt, truth.f, truth.a,
+                              truth.u)
     if components is not None:
         bf, bt = _wrench_arrays(components['wrench_bias'])
         out += [
@@ -92,10 +89,27 @@ def trial_messages(obs: Observations, truth: Truth | None = None,
                 sa, SEGMENTS, position=components['angle_bias'])),
             ('/truth/force_plate_bias', sw, wrenches_from_arrays(sw, obs.frame_id, bf, bt)),
         ]
-    rows = [(stamp, k, i) for k, (_, stamps, _) in enumerate(out)
+    return _time_ordered(out)
+
+
+def _time_ordered(per_topic: list[tuple[str, np.ndarray, list]],
+                  ) -> list[tuple[str, int, object]]:
+    """(topic, stamps, messages) blocks -> (topic, stamp, message) sorted by time, topic."""
+    rows = [(stamp, k, i) for k, (_, stamps, _) in enumerate(per_topic)
             for i, stamp in enumerate(stamps.tolist())]
     rows.sort()
-    return [(out[k][0], stamp, out[k][2][i]) for stamp, k, i in rows]
+    return [(per_topic[k][0], stamp, per_topic[k][2][i]) for stamp, k, i in rows]
+
+
+def _muscle_topics(topics: tuple[str, str, str], stamps: np.ndarray, l_mt: np.ndarray,
+                   v_mt: np.ndarray, f: np.ndarray, a: np.ndarray, u: np.ndarray,
+                   ) -> list[tuple[str, np.ndarray, list]]:
+    """Forces (length, speed, force), activations and excitations of the 9 muscles."""
+    forces, activations, excitations = topics
+    return [(forces, stamps, joint_states_from_arrays(stamps, MUSCLES, position=l_mt,
+                                                      velocity=v_mt, effort=f)),
+            (activations, stamps, joint_states_from_arrays(stamps, MUSCLES, position=a)),
+            (excitations, stamps, joint_states_from_arrays(stamps, MUSCLES, position=u))]
 
 
 def write_trial_bag(path: str | os.PathLike, obs: Observations, truth: Truth | None = None,
@@ -196,18 +210,9 @@ def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS
         th = theta[keep]
         lmt, = model.batch(model.musculotendon_lengths, th)
         vmt, = model.batch(model.musculotendon_velocities, th, theta_dot[keep])
-        out += [
-            ('/nmt/muscle/forces', ss, joint_states_from_arrays(
-                ss, MUSCLES, position=lmt, velocity=vmt, effort=s2.f)),
-            ('/nmt/muscle/activations', ss, joint_states_from_arrays(
-                ss, MUSCLES, position=s2.a)),
-            ('/nmt/muscle/excitations', ss, joint_states_from_arrays(
-                ss, MUSCLES, position=s2.u)),
-        ]
-    rows = [(stamp, k, i) for k, (_, stamps, _) in enumerate(out)
-            for i, stamp in enumerate(stamps.tolist())]
-    rows.sort()
-    return [(out[k][0], stamp, out[k][2][i]) for stamp, k, i in rows]
+        out += _muscle_topics(('/nmt/muscle/forces', '/nmt/muscle/activations',
+                               '/nmt/muscle/excitations'), ss, lmt, vmt, s2.f, s2.a, s2.u)
+    return _time_ordered(out)
 
 
 def write_estimates_bag(path: str | os.PathLike, model: object, run: object,

@@ -76,6 +76,19 @@ __all__ = ['MUSCLE_LABELS', 'SEGMENTS', 'SEGMENT_LABELS', 'plot_reference_jump']
 JOINT_LABELS = ('Ankle', 'Knee', 'Hip')
 
 
+def _angles_panel(ax: plt.Axes, truth: Truth, obs: Observations,
+                  estimates: list[tuple[np.ndarray, np.ndarray, str]], title: str) -> None:
+    """Segment angles: actual (thick), estimates (t, q, line style), raw observations (o)."""
+    for j, label in enumerate(SEGMENT_LABELS):
+        line, = ax.plot(truth.t, np.degrees(truth.q[:, j]), lw=2.2, alpha=0.5, label=label)
+        for t, q, style in estimates:
+            ax.plot(t, np.degrees(q[:, j]), style, lw=1, color=line.get_color())
+        ax.plot(obs.t_angles, np.degrees(obs.angles[:, j]), 'o', ms=3, mfc='none',
+                color=line.get_color())
+    ax.set(title=title, ylabel='angle (deg)')
+    ax.legend(fontsize=7)
+
+
 def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) -> Path:
     """Paper Fig. 3: joint torques, angles, ground forces and moment: actual/SKT/IVD/observed."""
     skt, ivd = run.skt, run.ivd
@@ -88,16 +101,8 @@ def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) ->
     ax.set(title='(A) Joint torques: actual (thick), SKT (solid), IVD (dashed)',
            ylabel='torque (N m)')
     ax.legend(fontsize=7, ncol=3)
-    ax = axes[0, 1]
-    for j, label in enumerate(SEGMENT_LABELS):
-        line, = ax.plot(truth.t, np.degrees(truth.q[:, j]), lw=2.2, alpha=0.5, label=label)
-        ax.plot(skt.t, np.degrees(skt.q[:, j]), '-', lw=1, color=line.get_color())
-        ax.plot(ivd.sim_t, np.degrees(ivd.sim_q[:, j]), '--', lw=1, color=line.get_color())
-        ax.plot(obs.t_angles, np.degrees(obs.angles[:, j]), 'o', ms=3, mfc='none',
-                color=line.get_color())
-    ax.set(title='(B) Segment angles: actual, SKT, IVD simulation, raw (o)',
-           ylabel='angle (deg)')
-    ax.legend(fontsize=7)
+    _angles_panel(axes[0, 1], truth, obs, [(skt.t, skt.q, '-'), (ivd.sim_t, ivd.sim_q, '--')],
+                  '(B) Segment angles: actual, SKT, IVD simulation, raw (o)')
     ax = axes[1, 0]
     for k, label in ((0, 'fore-aft'), (1, 'vertical')):
         line, = ax.plot(truth.t, truth.s[:, k], lw=2.2, alpha=0.5, label=f'{label} actual')
@@ -160,15 +165,8 @@ def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
         ax.plot(skt.t, skt.tau[:, j], ':', lw=1, color=line.get_color(), label=f'{label} SKT')
     ax.set(title='(A) Joint torques', ylabel='torque (N m)')
     ax.legend(fontsize=7, ncol=3)
-    ax = axes[1]
-    for j, label in enumerate(SEGMENT_LABELS):
-        line, = ax.plot(truth.t, np.degrees(truth.q[:, j]), lw=2.2, alpha=0.5, label=label)
-        ax.plot(sim.t, np.degrees(sim.x[:, j]), '-', lw=1, color=line.get_color())
-        ax.plot(obs.t_angles, np.degrees(obs.angles[:, j]), 'o', ms=3, mfc='none',
-                color=line.get_color())
-    ax.set(title='(B) Segment angles: actual (thick), NMT (thin), observed (o)',
-           ylabel='angle (deg)')
-    ax.legend(fontsize=7)
+    _angles_panel(axes[1], truth, obs, [(sim.t, sim.x, '-')],
+                  '(B) Segment angles: actual (thick), NMT (thin), observed (o)')
     ax = axes[2]
     s_sim, = model.batch(model.contact_outputs, sim.x[:, :6], sim.x[:, 6:12], sim.x0)
     for k, label in ((0, 'fore-aft'), (1, 'vertical')):
