@@ -132,10 +132,8 @@ def _reindex(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace) -> int:
-    import rclpy
-    from rclpy.context import Context
-
     from nmt_ros.io.bags import read_raw
+    from nmt_ros.nodes._ros import cli_node
     from nmt_ros.nodes.bag_player import BagPlayer, default_node_name
 
     info = bag_info(args.bag_path)
@@ -146,29 +144,25 @@ def _play(args: argparse.Namespace) -> int:
             print(f'error: topics not in the bag: {unknown}', file=sys.stderr)
             return 2
         topics = [t for t in topics if t.name in set(args.topics)]
-    context = Context()
-    rclpy.init(args=['nmt'] + list(getattr(args, 'extra', [])), context=context)
-    node = rclpy.create_node(default_node_name(), context=context)
-    player = BagPlayer(node, topics, publish_clock=args.clock is not None)
-    try:
-        if args.wait_for_subscribers > 0:
-            player.wait_for_subscribers(args.wait_for_subscribers, args.wait_timeout)
-        if args.delay > 0:
-            time.sleep(args.delay)
-        stats = player.play(read_raw(args.bag_path, [t.name for t in topics]),
-                            rate=args.rate, clock_hz=args.clock)
-        print(f'played {stats.messages} messages in {stats.wall_s:.3f} s '
-              f'(max lateness {stats.max_late_ns / 1e6:.3f} ms)', file=sys.stderr)
-        return 0 if stats.all_acked else 1
-    except TimeoutError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        player.destroy()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with cli_node(args, default_node_name()) as node:
+        player = BagPlayer(node, topics, publish_clock=args.clock is not None)
+        try:
+            if args.wait_for_subscribers > 0:
+                player.wait_for_subscribers(args.wait_for_subscribers, args.wait_timeout)
+            if args.delay > 0:
+                time.sleep(args.delay)
+            stats = player.play(read_raw(args.bag_path, [t.name for t in topics]),
+                                rate=args.rate, clock_hz=args.clock)
+            print(f'played {stats.messages} messages in {stats.wall_s:.3f} s '
+                  f'(max lateness {stats.max_late_ns / 1e6:.3f} ms)', file=sys.stderr)
+            return 0 if stats.all_acked else 1
+        except TimeoutError as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            return 130
+        finally:
+            player.destroy()
 
 
 def run(args: argparse.Namespace) -> int:

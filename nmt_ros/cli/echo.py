@@ -93,25 +93,21 @@ def choose_qos(node: Any, topic: str, *, profile: str | None = None, depth: int 
     infos = node.get_publishers_info_by_topic(topic)
     if not infos:
         return qos
-    reliable = sum(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-    transient = sum(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-    if reliable == len(infos):
-        qos.reliability = ReliabilityPolicy.RELIABLE
-    else:
-        if reliable and warn:
-            warn('Some, but not all, publishers are offering ReliabilityPolicy.RELIABLE. '
-                 'Falling back to ReliabilityPolicy.BEST_EFFORT as it will connect to all '
-                 'publishers')
-        qos.reliability = ReliabilityPolicy.BEST_EFFORT
-    if transient == len(infos):
-        qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
-    else:
-        if transient and warn:
-            warn('Some, but not all, publishers are offering DurabilityPolicy.TRANSIENT_LOCAL. '
-                 'Falling back to DurabilityPolicy.VOLATILE as it will connect to all '
-                 'publishers')
-        qos.durability = DurabilityPolicy.VOLATILE
+    # the stronger policy only if every publisher offers it
+    for policy, strong, weak in (
+            ('reliability', ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT),
+            ('durability', DurabilityPolicy.TRANSIENT_LOCAL, DurabilityPolicy.VOLATILE)):
+        offering = sum(getattr(i.qos_profile, policy) == strong for i in infos)
+        if 0 < offering < len(infos) and warn:
+            warn(f'Some, but not all, publishers are offering {_policy_name(strong)}. '
+                 f'Falling back to {_policy_name(weak)} as it will connect to all publishers')
+        setattr(qos, policy, strong if offering == len(infos) else weak)
     return qos
+
+
+def _policy_name(value: Any) -> str:
+    """``ReliabilityPolicy.RELIABLE`` (as ros2cli prints it)."""
+    return f'{type(value).__name__}.{value.name}'
 
 
 def wait_for_topic_type(node: Any, executor: Any, topic: str, deadline: float | None,
@@ -177,9 +173,9 @@ def echo(node: Any, executor: Any, topic: str, *, msg_type: str | None = None,
 
 
 def run(args: argparse.Namespace) -> int:
-    import rclpy
-    from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
+
+    from nmt_ros.nodes._ros import cli_node
 
     options = EchoOptions(
         once=args.once, timeout_s=args.timeout, csv=args.csv,
@@ -193,32 +189,27 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
         sys.stdout.flush()
 
-    context = Context()
-    rclpy.init(args=['nmt'] + list(getattr(args, 'extra', [])), context=context)
-    node = rclpy.create_node(f'_nmt_echo_{os.getpid()}', context=context,
-                             start_parameter_services=False)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
-        topic = node.resolve_topic_name(args.topic_name)
-        qos = None
-        if any(v is not None for v in (args.qos_profile, args.qos_depth, args.qos_history,
-                                       args.qos_reliability, args.qos_durability)):
-            qos = choose_qos(node, topic, profile=args.qos_profile, depth=args.qos_depth,
-                             history=args.qos_history, reliability=args.qos_reliability,
-                             durability=args.qos_durability)
-        count = echo(node, executor, topic, msg_type=args.message_type, options=options,
-                     qos=qos, write=write, warn=warn)
-        if options.once and count == 0:
-            warn(f'no message received on {topic} within {options.timeout_s:g} s')
+    with cli_node(args, f'_nmt_echo_{os.getpid()}', start_parameter_services=False) as node:
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        try:
+            topic = node.resolve_topic_name(args.topic_name)
+            qos = None
+            if any(v is not None for v in (args.qos_profile, args.qos_depth, args.qos_history,
+                                           args.qos_reliability, args.qos_durability)):
+                qos = choose_qos(node, topic, profile=args.qos_profile, depth=args.qos_depth,
+                                 history=args.qos_history, reliability=args.qos_reliability,
+                                 durability=args.qos_durability)
+            count = echo(node, executor, topic, msg_type=args.message_type, options=options,
+                         qos=qos, write=write, warn=warn)
+            if options.once and count == 0:
+                warn(f'no message received on {topic} within {options.timeout_s:g} s')
+                return 1
+            return 0
+        except (TimeoutError, ValueError) as exc:
+            warn(f'error: {exc}')
             return 1
-        return 0
-    except (TimeoutError, ValueError) as exc:
-        warn(f'error: {exc}')
-        return 1
-    except KeyboardInterrupt:
-        return 0
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            executor.shutdown()

@@ -17,10 +17,17 @@ ignored).
 handling, so a node can finish cleanly: the recorder closes its bag, the trackers wait until
 their last messages are acknowledged), spin until the node is done or a signal arrives, then
 ``destroy_node`` and ``try_shutdown``.
+
+:class:`TrackerNode` is what the two trackers share: the trial parameters, the input path
+(count, parse, gate, start/restart a trial), the end-of-stream protocol (``TrialBook``), the
+idle watchdog and the counted publication of output batches. :func:`cli_node` gives a CLI
+verb (``nmt echo``, ``nmt bag play``) a node in its own rclpy context.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+import functools
 import signal
 import sys
 import threading
@@ -28,8 +35,10 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
+from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -37,11 +46,18 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from msg_adapters.diagnostics import StatusRecord, to_diagnostic_array
+from msg_adapters.diagnostics import StatusRecord, from_diagnostic_array, to_diagnostic_array
+from msg_adapters.stamps import time_to_ns
 from nmt_ros.nodes._core import (
+    ERROR,
     STREAM_PART,
+    WARN,
     NodeStatus,
     Report,
+    Sample,
+    StreamGate,
+    TrialBook,
+    TrialClock,
     end_of_stream_values,
     missing_subscribers,
     parse_wait_for,
@@ -115,6 +131,13 @@ class NmtNode(Node):
             return [v for v in (got or []) if v]
         return self.declare_parameter(name, default, descriptor).value
 
+    def fail_to_start(self, error: str) -> None:
+        """Report and log why the node cannot work; the process ends with exit code 1."""
+        self.status.error = error
+        self.get_logger().error(error)
+        self.exit_code = 1
+        self.done = True
+
     # ------------------------------------------------------------------ status
     def status_values(self) -> None:
         """Hook: refresh ``self.status.extra`` before a report."""
@@ -182,6 +205,203 @@ class NmtNode(Node):
         """Hook run by :func:`run_node` after the spin loop (before destroy_node)."""
 
 
+class TrackerNode(NmtNode):
+    """Base of the trackers: gated input streams, trials, end of stream, idle watchdog.
+
+    A subclass names its ``INPUTS`` and ``OUTPUTS`` (topic -> message type), builds
+    ``self.runner`` (``reset()`` starts a trial), ``self.gates`` (:meth:`stream_gates`) and,
+    if the epoch is a parameter, ``self.clock``; then it calls :meth:`listen`. It implements
+    :meth:`parse` (message -> stamp, values; ValueError rejects it), :meth:`feed` (the samples
+    the gate let through) and :meth:`flush` (the last outputs of a trial), and publishes
+    with :meth:`publish_batches`. A trial starts with the first accepted sample and ends
+    (:meth:`_finish`) on the producers' end of stream, after ``idle_flush_s`` without input
+    or at a gap longer than ``max_gap_s`` (new data then start the next trial).
+    """
+
+    INPUTS: Mapping[str, type] = {}
+    OUTPUTS: Mapping[str, type] = {}
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        p = self.param
+        self.gap_factor = p('gap_factor', 1.5, 'a spacing above this many periods is a gap '
+                            '(filled by interpolation, reported)', low=1.01, high=100.0)
+        self.max_gap_s = p('max_gap_s', 0.5, 'a longer gap ends the trial [s]', low=0.0,
+                           high=3600.0)
+        self.idle_flush_s = p('idle_flush_s', 1.0, 'end the trial after this long without '
+                              'input [s] (0 = never)', low=0.0, high=3600.0)
+        self.end_timeout_s = p('end_timeout_s', 2.0, 'after an end-of-stream announcement, '
+                               'flush at the latest after this long even if messages are '
+                               'missing [s]', low=0.0, high=3600.0)
+        self.input_reliable = p('input_reliable', True, 'subscribe RELIABLE (lossless); '
+                                'false: BEST_EFFORT, to accept best-effort sources')
+        self.book = TrialBook(self.INPUTS)
+        self.clock = TrialClock(0)
+        self.gates: dict[str, StreamGate] = {}
+        self.runner: Any = None
+        self.tracking = False
+        self.last_input = time.monotonic()
+        self.newest_input_ns = 0
+        self.newest_output_ns = 0
+        self.pubs: dict[str, Any] = {}
+
+    def stream_gates(self, periods_s: Mapping[str, float]) -> dict[str, StreamGate]:
+        """One :class:`StreamGate` per input topic (nominal period [s] each)."""
+        return {topic: StreamGate(topic, period, self.gap_factor, self.max_gap_s)
+                for topic, period in periods_s.items()}
+
+    def listen(self) -> None:
+        """Create the publishers and the watchdog, hear end-of-stream announcements and open
+        the inputs once the outputs have their subscribers (``wait_for``)."""
+        qos = data_qos(self.qos_depth)
+        self.pubs = {topic: self.create_publisher(kind, topic, qos)
+                     for topic, kind in self.OUTPUTS.items()}
+        self.create_timer(0.05, self.watchdog)
+        self.status.state = 'ready'
+        # end-of-stream announcements (transient local: heard even if matched late)
+        self.create_subscription(DiagnosticArray, STATUS_TOPIC, self.on_status, STATUS_QOS)
+        self.open_inputs_when_ready(self._open_inputs)
+
+    def _open_inputs(self) -> None:
+        qos = data_qos(self.qos_depth, self.input_reliable)
+        for topic, kind in self.INPUTS.items():
+            self.create_subscription(kind, topic, functools.partial(self.on_input, topic), qos)
+        self.status.state = 'ready'
+
+    # ------------------------------------------------------------------ hooks
+    def parse(self, topic: str, msg: Any) -> tuple[int, np.ndarray]:
+        """(stamp [ns], values) of an input message; ValueError rejects it."""
+        raise NotImplementedError
+
+    def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
+             received: float) -> None:
+        """Process the samples the gate let through for the message stamped ``stamp_ns``
+        (received at monotonic time ``received``)."""
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        """Publish the trial's last outputs (the trial is ending)."""
+
+    def on_trial_start(self, epoch_ns: int) -> None:
+        """Reset per-trial state of the subclass."""
+
+    def end_state(self) -> str:
+        """``status.state`` of a finished trial."""
+        return 'finished'
+
+    # ------------------------------------------------------------------ inputs
+    def on_input(self, topic: str, msg: Any) -> None:
+        received = time.monotonic()
+        self.status.receive(topic)
+        self.book.saw(topic, time_to_ns(msg.header.stamp))
+        try:
+            stamp_ns, values = self.parse(topic, msg)
+        except ValueError as exc:
+            self.status.reject(topic, f'{topic}: {exc}')
+            self.notify()
+            return
+        self.status.mark_active()
+        self.last_input = received
+        if not self.tracking:
+            self._start_trial(stamp_ns)
+        gate = self.gates[topic]
+        result = gate.offer(stamp_ns, values)
+        if result.rejected:
+            self.status.reject(topic, result.rejected)
+            self.notify()
+            return
+        if result.restart:
+            self.status.event(WARN, result.restart)
+            self._finish(result.restart)
+            self._start_trial(stamp_ns)
+            self.book.saw(topic, stamp_ns)
+            result = gate.offer(stamp_ns, values)
+        if result.gap:
+            self.status.interpolated += len(result.samples) - 1
+            self.status.event(WARN, result.gap)
+        self.feed(topic, result.samples, stamp_ns, received)
+
+    def on_status(self, msg: DiagnosticArray) -> None:
+        _, records = from_diagnostic_array(msg)
+        if any(self.book.announcement(r.values, time.monotonic()) for r in records):
+            self._check_end()
+
+    # ------------------------------------------------------------------ trial
+    def _start_trial(self, stamp_ns: int) -> None:
+        trial = self.book.start()
+        self.runner.reset()
+        self.clock.reset()
+        epoch = self.clock.start(stamp_ns)
+        for gate in self.gates.values():
+            gate.reset()
+            gate.not_before_ns = epoch
+        self.status.error = None
+        self.tracking = True
+        self.status.state = 'tracking'
+        self.status.detail = f'trial {trial}'
+        self.status.extra['trial'] = trial
+        self.on_trial_start(epoch)
+
+    def _check_end(self) -> None:
+        if self.tracking:
+            why = self.book.verdict(time.monotonic(), self.end_timeout_s)
+            if why:
+                if 'missing' in why:
+                    self.status.event(ERROR, why)
+                self._finish(why)
+
+    def _finish(self, why: str) -> None:
+        if not self.tracking:
+            return
+        self.flush()
+        self.tracking = False
+        self.status.state = self.end_state()
+        self.status.detail = f'trial {self.book.trial} finished: {why}'
+        counts, firsts = self.book.finish()
+        self.announce_end(counts, firsts, trial=self.book.trial, reason=why)
+        if self.exit_when_finished:
+            self.done = True
+
+    def watchdog(self) -> None:
+        """Idle/publisher-gone detection and the end-of-stream timeout."""
+        if not self.tracking:
+            return
+        self._check_end()
+        if not self.tracking:
+            return
+        idle = time.monotonic() - self.last_input
+        if self.idle_flush_s > 0 and idle > self.idle_flush_s:
+            gone = [t for t in self.INPUTS if self.count_publishers(t) == 0]
+            why = f'no input for {idle:.2f} s'
+            if gone:
+                why += '; publisher gone' + (f' on {gone}' if len(self.INPUTS) > 1 else '')
+            self.status.event(ERROR if gone else WARN, why)
+            self._finish(why)
+
+    # ------------------------------------------------------------------ outputs
+    def publish_batches(self, stamps: np.ndarray, batches: Mapping[str, Sequence[Any]]) -> None:
+        """Publish one message per stamp and topic (interleaved by stamp); count them for the
+        status and for our end-of-stream announcement."""
+        for i in range(stamps.size):
+            for topic, msgs in batches.items():
+                self.pubs[topic].publish(msgs[i])
+        for topic in batches:
+            self.status.publish(topic, stamps.size)
+            self.book.output(topic, int(stamps[0]), stamps.size)
+        self.newest_output_ns = int(stamps[-1])
+
+    def status_values(self) -> None:
+        self.status.extra['data_lag_ms'] = (
+            (self.newest_input_ns - self.newest_output_ns) / 1e6
+            if self.newest_output_ns else float('nan'))
+
+    def on_shutdown(self, interrupted: bool) -> None:
+        if not interrupted:
+            self.publish_status()
+            if not self.wait_for_acks(10.0):
+                self.exit_code = 1
+
+
 class _Stop:
     """Set by SIGINT/SIGTERM; the spin loop checks it between callbacks."""
 
@@ -234,3 +454,19 @@ def run_node(factory: Callable[..., NmtNode], args: Sequence[str] | None = None,
         rclpy.try_shutdown()
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+@contextmanager
+def cli_node(args: Any, name: str, **kwargs: Any) -> Iterator[Node]:
+    """A node of a CLI verb in its own rclpy context (``args.extra`` goes to ``rclpy.init``);
+    destroyed and the context shut down on leaving."""
+    context = Context()
+    rclpy.init(args=['nmt'] + list(getattr(args, 'extra', [])), context=context)
+    try:
+        node = rclpy.create_node(name, context=context, **kwargs)
+        try:
+            yield node
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

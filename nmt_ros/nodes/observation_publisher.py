@@ -77,10 +77,7 @@ class ObservationPublisherNode(NmtNode):
             if absent:
                 raise BagError(f'topics not in the bag {self.bag}: {absent}')
         except (BagError, KeyError, OSError) as exc:
-            self.status.error = f'cannot replay: {exc}'
-            self.get_logger().error(self.status.error)
-            self.exit_code = 1
-            self.done = True
+            self.fail_to_start(f'cannot replay: {exc}')
             return
         self.first_stamps = first_stamps(self.bag, [t.name for t in wanted])
         self.player = BagPlayer(self, wanted, qos_override=data_qos(self.qos_depth),

@@ -80,10 +80,7 @@ class RecorderNode(NmtNode):
             self.writer = BagWriter(self.output, compression=self.compression,
                                     flush_period_s=self.flush_period_s)
         except (FileExistsError, OSError, ValueError) as exc:
-            self.status.error = f'cannot record: {exc}'
-            self.get_logger().error(self.status.error)
-            self.exit_code = 1
-            self.done = True
+            self.fail_to_start(f'cannot record: {exc}')
             return
         self.status.state = 'recording'
         self.get_logger().info(f'recording to {self.output}')

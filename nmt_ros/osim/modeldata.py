@@ -65,39 +65,39 @@ def muscle_paths(data: dict) -> dict[str, tuple[tuple[str, ...], np.ndarray, np.
     return out
 
 
+def _monomials(exponents: np.ndarray, q2: np.ndarray, d: int | None = None) -> np.ndarray:
+    """prod_j q_j ** e_kj for q2 [n, dim] -> [n, n_terms]; with ``d``, its derivative in q_d."""
+    e = exponents
+    terms = np.ones((q2.shape[0], e.shape[0]))
+    for j in range(e.shape[1]):
+        if j == d:
+            power = np.maximum(e[:, j] - 1, 0)
+            terms *= e[None, :, j] * q2[:, j:j + 1] ** power[None, :]
+        else:
+            terms *= q2[:, j:j + 1] ** e[None, :, j]
+    return terms
+
+
 def polynomial_value(exponents: np.ndarray, coefficients: np.ndarray,
                      q: np.ndarray) -> np.ndarray:
     """sum_k c_k prod_j q_j ** e_kj for q [n, dim] (or [dim]); returns [n] (or scalar)."""
     q = np.asarray(q, dtype=float)
-    single = q.ndim == 1
-    q2 = np.atleast_2d(q)
     e = np.asarray(exponents, dtype=int)
-    terms = np.ones((q2.shape[0], e.shape[0]))
-    for j in range(e.shape[1]):
-        terms *= q2[:, j:j + 1] ** e[None, :, j]
-    value = terms @ np.asarray(coefficients, dtype=float)
-    return value[0] if single else value
+    value = _monomials(e, np.atleast_2d(q)) @ np.asarray(coefficients, dtype=float)
+    return value[0] if q.ndim == 1 else value
 
 
 def polynomial_gradient(exponents: np.ndarray, coefficients: np.ndarray,
                         q: np.ndarray) -> np.ndarray:
     """d l / d q_j for q [n, dim] (or [dim]); returns [n, dim] (or [dim])."""
     q = np.asarray(q, dtype=float)
-    single = q.ndim == 1
     q2 = np.atleast_2d(q)
     e = np.asarray(exponents, dtype=int)
     c = np.asarray(coefficients, dtype=float)
     grad = np.zeros((q2.shape[0], e.shape[1]))
     for i in range(e.shape[1]):
-        terms = np.ones((q2.shape[0], e.shape[0]))
-        for j in range(e.shape[1]):
-            if j == i:
-                power = np.maximum(e[:, j] - 1, 0)
-                terms *= e[None, :, j] * q2[:, j:j + 1] ** power[None, :]
-            else:
-                terms *= q2[:, j:j + 1] ** e[None, :, j]
-        grad[:, i] = terms @ c
-    return grad[0] if single else grad
+        grad[:, i] = _monomials(e, q2, i) @ c
+    return grad[0] if q.ndim == 1 else grad
 
 
 def opensim_exponents(dimension: int, order: int) -> list[tuple[int, ...]]:
