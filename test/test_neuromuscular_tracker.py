@@ -301,8 +301,6 @@ def jump(tracker) -> dict:
     """
     from nmt_ros.io.trial_bag import read_truth
 
-    if not JUMP_BAG.exists():
-        pytest.skip('bags/reference_jump not present')
     tr = read_truth(JUMP_BAG)
     model = tracker.model
     theta, = model.batch(model.joint_angles, tr.q)
