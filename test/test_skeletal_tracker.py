@@ -119,3 +119,25 @@ def test_loss_of_control_is_detected_and_reported(model, truth):
         assert np.isfinite(res.tau).all()   # what was returned is usable
         assert np.abs(res.tau).max() < SKTSettings().max_torque_nm + 1.0
         assert res.t.size == 0 or res.t[-1] < ev['t']   # nothing past the event
+
+
+def test_optimal_tracking_is_consistent_and_beats_the_tracker(model, truth, obs):
+    """Stage 1 by optimal tracking: a solution of Eq. 1 (collocation), closer to the actual
+    torques and ground forces than the paper's tracker on the shipped trial."""
+    from nmt_ros.tracking.optimal_tracker import track_optimal
+
+    cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
+    skt = track(model, cond)
+    opt = track_optimal(model, obs, skt)
+    assert opt.ok, opt.status
+    # Dynamically consistent: the torques reproduce the motion through Eq. 1.
+    res, = model.batch(model.dynamics_residual, opt.q, opt.qd, opt.qdd, opt.tau, opt.x0)
+    assert np.abs(res).max() < 1e-6
+    peak = np.abs(truth.tau[truth.t <= truth.liftoff_s]).max(axis=0)
+    e_opt = contact_rms(opt.t, opt.tau, truth, truth.tau) / peak
+    e_skt = contact_rms(skt.t, skt.tau, truth, truth.tau) / peak
+    assert (e_opt < e_skt).all(), (e_opt, e_skt)
+    f_opt = contact_rms(opt.t, opt.s[:, :2], truth, truth.s[:, :2])
+    f_skt = contact_rms(skt.t, skt.s[:, :2], truth, truth.s[:, :2])
+    assert (f_opt < f_skt).all()
+    assert abs(opt.liftoff_s - truth.liftoff_s) < 0.002

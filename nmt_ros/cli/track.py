@@ -19,6 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Stage 2 over the whole horizon (the paper) or receding windows")
     parser.add_argument('--window', type=float, default=None,
                         help='Stage 2 window length H in s (windowed mode)')
+    parser.add_argument('--stage1', choices=('skt', 'optimal'), default='skt',
+                        help="Stage 1: the paper's skeletal motion tracker, or optimal tracking "
+                        'of all observations over the trial (offline, more accurate)')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -28,7 +31,7 @@ def _say(msg: str) -> None:
 
 
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
-              figures: bool = True, say: callable = _say) -> dict | None:
+              figures: bool = True, say: callable = _say, stage1: str = 'skt') -> dict | None:
     """Run the NMT on ``bag``, write the outputs; returns the metrics (None without truth)."""
     from nmt_ros.io.bags import bag_info
     from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
@@ -39,8 +42,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     obs = read_observations(bag)
     say(f'{bag}: {obs.t_angles.size} angle samples, {obs.t_wrench.size} wrench samples, '
         f'{obs.t_wrench[-1]:.3f} s')
-    run = run_nmt(model, obs, NMTSettings(stage2_mode=stage2_mode, window_length_s=window),
-                  progress=say)
+    run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
+                                          window_length_s=window), progress=say)
     out.mkdir(parents=True, exist_ok=True)
     write_estimates_bag(out / 'estimates', model, run, obs.info['epoch_ns'])
     say(f'estimates: {out / "estimates"}')
@@ -55,6 +58,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         po = json.loads(record.read_text()).get('po')
     metrics = compute_metrics(model, run, truth, po)
     metrics['source_bag'] = str(bag)
+    metrics['stage1_method'] = stage1
     metrics['custom_data'] = dict(bag_info(bag).custom_data or {})
     (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
     say(f'metrics: {out / "metrics.json"}')
@@ -77,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         shutil.rmtree(est)
     metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
-                        figures=not args.no_figures)
+                        figures=not args.no_figures, stage1=args.stage1)
     if metrics:
         from nmt_ros.study.report import summary_lines
 

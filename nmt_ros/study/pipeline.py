@@ -34,6 +34,7 @@ class NMTSettings:
 
     conditioning: ConditioningSettings = ConditioningSettings()
     skt: SKTSettings = SKTSettings()
+    stage1: str = 'skt'                  # 'skt' (the paper) | 'optimal' (optimal tracking)
     stage2_mode: str = 'full'            # 'full' (the paper) | 'windowed'
     window_length_s: float | None = None  # windowed mode: H (default from stage2.yaml)
     rate_hz: float = 1080.0
@@ -76,6 +77,14 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     say('Stage 1: skeletal motion tracker')
     skt = track(model, cond, settings.skt, settings.rate_hz)
     cpu['stage1'] = skt.cpu_s + cpu['conditioning']
+    if settings.stage1 == 'optimal' and skt.ok:
+        from nmt_ros.tracking.optimal_tracker import track_optimal
+
+        say('Stage 1: optimal tracking of all observations (from the tracker\'s result)')
+        skt = track_optimal(model, obs, skt)
+        cpu['stage1'] += skt.cpu_s
+    elif settings.stage1 not in ('skt', 'optimal'):
+        raise ValueError(f"stage1 must be 'skt' or 'optimal', not {settings.stage1!r}")
     if not skt.ok:
         say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
             f'{skt.events[0]["t"]:.3f} s')

@@ -19,7 +19,8 @@ def summary_lines(m: dict) -> list[str]:
     a = m['actual']
     lines = [f'actual jump: {a["jump_height_m"] * 100:.2f} cm, lift-off {a["liftoff_s"]:.4f} s']
     s = m['skt']
-    lines.append(f'SKT ({s["status"]}, CPU {s["cpu_s"]:.2f} s): torque RMS % of peak '
+    name = 'Stage 1 (optimal tracking)' if m.get('stage1_method') == 'optimal' else 'SKT'
+    lines.append(f'{name} ({s["status"]}, CPU {s["cpu_s"]:.2f} s): torque RMS % of peak '
                  f'{_fmt(s["torque_rms_pct_peak"], JOINTS)}; angles RMS deg '
                  f'{_fmt(s["angle_rms_deg"], SEGMENTS, "{:.2f}")} (filtered obs '
                  f'{_fmt(s["filtered_observation_angle_rms_deg"], SEGMENTS, "{:.2f}")}); GRF '

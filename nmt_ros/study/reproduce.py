@@ -36,15 +36,17 @@ def _contact_rms_pct(t: np.ndarray, est: np.ndarray, truth: Truth, ref: np.ndarr
 
 
 def seed_study(model: JumperModel, truth: Truth, seeds: list[int],
-               obs_settings: ObservationSettings, say: callable) -> dict:
+               obs_settings: ObservationSettings, say: callable,
+               settings: NMTSettings | None = None) -> dict:
     """NMT on other noise realisations: per-seed errors, mean and worst."""
     from nmt_ros.study.metrics import compute_metrics
 
+    settings = settings if settings is not None else NMTSettings()
     rows = []
     for seed in seeds:
         obs, _ = make_observations(truth, replace(obs_settings, seed=seed),
                                    body_weight=model.p.body_weight)
-        run = run_nmt(model, obs)
+        run = run_nmt(model, obs, settings)
         m = compute_metrics(model, run, truth)
         row = {'seed': seed, 'skt_status': m['skt']['status'],
                'skt_torque_pct': m['skt']['torque_rms_pct_peak'],
@@ -111,6 +113,20 @@ def noise_sweep(model: JumperModel, truth: Truth, scales: list[float], seeds: li
     return rows
 
 
+def optimal_study(model: JumperModel, truth: Truth, obs: object, seeds: list[int],
+                  obs_settings: ObservationSettings, say: callable) -> dict:
+    """The whole NMT with Stage 1 by optimal tracking (seed 0 = the shipped observations)."""
+    from nmt_ros.study.metrics import compute_metrics
+
+    settings = NMTSettings(stage1='optimal')
+    run = run_nmt(model, obs, settings)
+    shipped = compute_metrics(model, run, truth)
+    say(f'shipped bag: Stage 1 torque % {_short(shipped["skt"]["torque_rms_pct_peak"])}, NMT '
+        f'jump {shipped["nmt"]["jump_height_m"] * 100:.1f} cm')
+    others = seed_study(model, truth, [s for s in seeds if s != 0], obs_settings, say, settings)
+    return {'shipped': {k: shipped[k] for k in ('skt', 'nmt')}, 'seeds': others}
+
+
 def jacobian_study(model: JumperModel, obs: object) -> dict:
     """Exact (AD) vs numerical (central differences) Jacobians in Stage 1."""
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
@@ -162,7 +178,7 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
 
     model = default_model()
     t0 = time.perf_counter()
-    say('[1/5] NMT and IVD on the reference observations')
+    say('[1/6] NMT and IVD on the reference observations')
     metrics = track_bag(bag, out, say=say)
     if metrics is None:
         raise ValueError(f'{bag} has no /truth/* topics: cannot reproduce the study on it')
@@ -173,18 +189,20 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
     obs_settings = ObservationSettings(**json.loads(
         metrics['custom_data'].get('nmt.observation_settings', '{}')))
     seeds = [1, 2] if quick else [1, 2, 3, 4, 5]
-    say(f'[2/5] {len(seeds)} other noise realisations')
+    say(f'[2/6] {len(seeds)} other noise realisations')
     metrics['seeds'] = seed_study(model, truth, seeds, obs_settings, say)
     scales = [0.5, 1.0, 3.0] if quick else [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
-    say(f'[3/5] noise sweep x{scales}')
+    say(f'[3/6] noise sweep x{scales}')
     metrics['noise_sweep'] = noise_sweep(model, truth, scales, [1] if quick else [1, 2],
                                          obs_settings, say)
-    say('[4/5] exact vs numerical Jacobians')
+    say('[4/6] exact vs numerical Jacobians')
     metrics['jacobians'] = jacobian_study(model, obs)
-    say('[5/5] Stage 2 windows (latency / accuracy)')
+    say('[5/6] Stage 2 windows (latency / accuracy)')
     run = run_nmt(model, obs, NMTSettings())
     windows = [0.02, 0.1] if quick else [0.01, 0.02, 0.05, 0.1, 0.15, 0.2]
     metrics['stage2_windows'] = window_study(model, run, truth, windows, say)
+    say('[6/6] beyond the paper: Stage 1 by optimal tracking, same observations and seeds')
+    metrics['optimal_stage1'] = optimal_study(model, truth, obs, [0] + seeds, obs_settings, say)
     metrics['settings'] = {'nmt': _settings_dict(NMTSettings()), 'quick': quick}
     metrics['wall_s'] = time.perf_counter() - t0
     (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
@@ -193,12 +211,46 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
     return metrics
 
 
+def _optimal_report(m: dict) -> list[str]:
+    """Rows for Stage 1 by optimal tracking next to the paper's tracker."""
+    if 'optimal_stage1' not in m:
+        return []
+    o = m['optimal_stage1']
+    sk, nm = o['shipped']['skt'], o['shipped']['nmt']
+    seeds = o['seeds']['summary']
+    out = ['### Beyond the paper: Stage 1 by optimal tracking (offline)', '',
+           '| | paper\'s tracker (SKT) | optimal tracking |', '|---|---|---|']
+    pairs = [
+        ('torque RMS % of peak', _short(m['skt']['torque_rms_pct_peak']),
+         _short(sk['torque_rms_pct_peak'])),
+        ('seeds: mean torque %', '/'.join(f'{v["mean"]:.1f}' for v in
+                                          m['seeds']['summary']['skt_torque_pct'].values()),
+         '/'.join(f'{v["mean"]:.1f}' for v in seeds['skt_torque_pct'].values())),
+        ('angles RMS deg', _short(m['skt']['angle_rms_deg']), _short(sk['angle_rms_deg'])),
+        ('GRF RMS N', f'{m["skt"]["grf_rms_n"]["fore_aft"]:.1f} / '
+         f'{m["skt"]["grf_rms_n"]["vertical"]:.1f}',
+         f'{sk["grf_rms_n"]["fore_aft"]:.1f} / {sk["grf_rms_n"]["vertical"]:.1f}'),
+        ('moment RMS N m', f'{m["skt"]["moment_rms_nm"]:.1f}', f'{sk["moment_rms_nm"]:.1f}'),
+        ('Stage 1 CPU s', f'{m["skt"]["cpu_s"]:.2f}', f'{sk["cpu_s"]:.2f}'),
+        ('NMT jump cm', f'{m["nmt"]["jump_height_m"] * 100:.1f}',
+         f'{nm["jump_height_m"] * 100:.1f}'),
+        ('seeds: NMT jump cm (mean)',
+         f'{m["seeds"]["summary"]["nmt_jump_height_m"]["mean"] * 100:.1f}',
+         f'{seeds["nmt_jump_height_m"]["mean"] * 100:.1f}'),
+        ('muscle force RMS % F0', _short(m['nmt']['muscle_force_rms_pct_f0']),
+         _short(nm['muscle_force_rms_pct_f0'])),
+    ]
+    out += [f'| {a} | {b} | {c} |' for a, b, c in pairs]
+    return out + ['']
+
+
 def _settings_dict(s: NMTSettings) -> dict:
     return json.loads(json.dumps(asdict(s), default=str))
 
 
 def _extra_report(m: dict) -> str:
     lines = ['', '## Robustness', '']
+    lines += _optimal_report(m)
     s = m['seeds']['summary']
     lines.append(f'Other noise seeds ({len(m["seeds"]["seeds"])}): SKT torque RMS % of peak, '
                  'mean / worst: ' + ', '.join(
