@@ -1,5 +1,9 @@
 """``nmt track BAG --out DIR``: batch NMT (Stage 1, IVD, Stage 2, NMT simulation) on a bag.
 
+Stage 1 is by default optimal tracking of all observations (``--stage1 skt``: the paper's
+skeletal motion tracker, whose result is also its initial guess); ``metrics.json`` says which
+(``stage1_method``; its ``skt`` block holds the Stage-1 results either way).
+
 Writes ``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time) and,
 when the bag carries ``/truth/*``, ``DIR/metrics.json`` and the paper-style figures.
 """
@@ -19,9 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Stage 2 over the whole horizon (the paper) or receding windows")
     parser.add_argument('--window', type=float, default=None,
                         help='Stage 2 window length H in s (windowed mode)')
-    parser.add_argument('--stage1', choices=('skt', 'optimal'), default='skt',
-                        help="Stage 1: the paper's skeletal motion tracker, or optimal tracking "
-                        'of all observations over the trial (offline, more accurate)')
+    parser.add_argument('--stage1', choices=('optimal', 'skt'), default='optimal',
+                        help='Stage 1: optimal tracking of all observations over the trial '
+                        "(default: the most accurate offline), or the paper's skeletal motion "
+                        'tracker (what the live graph runs)')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -31,7 +36,8 @@ def _say(msg: str) -> None:
 
 
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
-              figures: bool = True, say: callable = _say, stage1: str = 'skt') -> dict | None:
+              figures: bool = True, say: callable = _say, stage1: str = 'optimal',
+              ) -> dict | None:
     """Run the NMT on ``bag``, write the outputs; returns the metrics (None without truth)."""
     from nmt_ros.io.bags import bag_info
     from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
