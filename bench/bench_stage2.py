@@ -80,16 +80,10 @@ def best_of(fn, repeat: int) -> tuple[float, object]:
 
 def nmt_jump(tracker: nt.NeuromuscularTracker, ref: dict, res: nt.Stage2Result) -> float:
     """Jump height [m] of the skeleton driven by the Stage-2 excitations from the true state."""
-    from nmt_ros.study.reference import simulate_musculoskeletal_rk4
+    from nmt_ros.study.pipeline import simulate_stage2
 
     model, tr = tracker.model, ref['truth']
-
-    def excitation(t: float) -> np.ndarray:
-        i = int(np.searchsorted(res.t, t + 1e-12, side='right')) - 1
-        return res.u[min(max(i, 0), res.t.size - 1)]
-
-    x_init = np.concatenate([tr.q[0], tr.qd[0], res.a[0]])
-    sim = simulate_musculoskeletal_rk4(model, x_init, tr.x0, excitation, float(tr.t[-1]))
+    sim = simulate_stage2(model, res, tr.q[0], tr.qd[0], tr.x0, float(tr.t[-1]))
     i = int(np.searchsorted(sim.t, sim.liftoff_s))
     return float(model.jump_height(sim.x[i, :6], sim.x[i, 6:12])['height_m'])
 

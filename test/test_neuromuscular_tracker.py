@@ -360,16 +360,10 @@ def test_reference_jump_windowed_matches_full_horizon(tracker, jump, jump_full):
 
 def test_reference_jump_nmt_height(tracker, jump, jump_full):
     """The skeleton driven by the Stage-2 excitations jumps within 2 % of the actual height."""
-    from nmt_ros.study.reference import simulate_musculoskeletal_rk4
+    from nmt_ros.study.pipeline import simulate_stage2
 
     model, tr, res = tracker.model, jump['truth'], jump_full
-
-    def excitation(t: float) -> np.ndarray:
-        i = int(np.searchsorted(res.t, t + 1e-12, side='right')) - 1
-        return res.u[min(max(i, 0), res.t.size - 1)]
-
-    x_init = np.concatenate([tr.q[0], tr.qd[0], res.a[0]])
-    sim = simulate_musculoskeletal_rk4(model, x_init, tr.x0, excitation, float(tr.t[-1]))
+    sim = simulate_stage2(model, res, tr.q[0], tr.qd[0], tr.x0, float(tr.t[-1]))
     i = int(np.searchsorted(sim.t, sim.liftoff_s))
     height = model.jump_height(sim.x[i, :6], sim.x[i, 6:12])['height_m']
     assert abs(height / jump['height_m'] - 1) < 0.02, (height, jump['height_m'])

@@ -20,6 +20,17 @@ def _liftoff(ax: plt.Axes, t_lo: float) -> None:
     ax.axvline(t_lo, color='0.6', lw=0.8, ls=':')
 
 
+def _finish(fig: plt.Figure, axes: np.ndarray, t_lo: float, path: str | Path) -> Path:
+    """Mark lift-off and label time on every panel, save as PNG, close."""
+    for a in np.ravel(axes):
+        _liftoff(a, t_lo)
+        a.set_xlabel('time (s)')
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_reference_jump(truth: Truth, obs: Observations | None, path: str | Path,
                         title: str = 'Reference jump (parameter optimisation)',
                         body_weight: float | None = None) -> Path:
@@ -60,14 +71,8 @@ def plot_reference_jump(truth: Truth, obs: Observations | None, path: str | Path
         ax.plot(truth.t, truth.a[:, i], label=label)
     ax.set(ylabel='activation', title='Activations')
     ax.legend(loc='best', fontsize=7, ncol=3)
-    for a in axes.ravel():
-        _liftoff(a, truth.liftoff_s)
-        a.set_xlabel('time (s)')
     fig.suptitle(f'{title}; lift-off at {truth.liftoff_s * 1000:.1f} ms (dotted)')
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, axes, truth.liftoff_s, path)
 
 
 __all__ = ['MUSCLE_LABELS', 'SEGMENTS', 'SEGMENT_LABELS', 'plot_reference_jump']
@@ -121,13 +126,7 @@ def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) ->
             label='filtered observation')
     ax.set(title='(D) Ground moment about the foot COM', ylabel='moment (N m)')
     ax.legend(fontsize=7)
-    for a in axes.ravel():
-        _liftoff(a, truth.liftoff_s)
-        a.set_xlabel('time (s)')
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, axes, truth.liftoff_s, path)
 
 
 def plot_fig4(truth: Truth, run: object, path: str | Path, f0: np.ndarray) -> Path:
@@ -140,16 +139,10 @@ def plot_fig4(truth: Truth, run: object, path: str | Path, f0: np.ndarray) -> Pa
         ax.plot(s2.t, s2.u[:, i], color='0.55', lw=2.2, alpha=0.8, label='NMT excitation')
         ax.plot(s2.t, s2.f[:, i] / f0[i], '--', color='0.55', lw=2.2, alpha=0.8,
                 label='NMT force / F0')
-        _liftoff(ax, truth.liftoff_s)
         ax.set_title(label)
         ax.set_ylim(-0.05, 1.15)
     axes[0, 0].legend(fontsize=7)
-    for ax in axes[-1]:
-        ax.set_xlabel('time (s)')
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, axes, truth.liftoff_s, path)
 
 
 def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
@@ -174,10 +167,4 @@ def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
         ax.plot(sim.t, s_sim[:, k], '-', lw=1, color=line.get_color(), label=f'{label} NMT')
     ax.set(title='(C) Ground forces', ylabel='force (N)')
     ax.legend(fontsize=7)
-    for a in axes:
-        _liftoff(a, truth.liftoff_s)
-        a.set_xlabel('time (s)')
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, axes, truth.liftoff_s, path)

@@ -65,6 +65,20 @@ def joint_kinematics(model: JumperModel, q: np.ndarray, qd: np.ndarray, qdd: np.
     return tuple(model.batch(model.joint_angles, x)[0] for x in (q, qd, qdd))
 
 
+def simulate_stage2(model: JumperModel, stage2: Stage2Result, q0: np.ndarray, qd0: np.ndarray,
+                    x0: np.ndarray, t_end: float, rate_hz: float = 1080.0) -> Simulation:
+    """The NMT forward simulation: the musculoskeletal model driven by Stage 2's excitations
+    (held between its samples) from the tracked initial state and Stage 2's activations."""
+    t_u, u = stage2.t, stage2.u
+
+    def excitation(t: float) -> np.ndarray:
+        i = int(np.searchsorted(t_u, t + 1e-12, side='right')) - 1
+        return u[min(max(i, 0), len(t_u) - 1)]
+
+    x_init = np.concatenate([q0, qd0, stage2.a[0]])
+    return simulate_musculoskeletal_rk4(model, x_init, x0, excitation, t_end, rate_hz)
+
+
 def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSettings(),
             progress: callable | None = None) -> NMTRun:
     """Stage 1, IVD, Stage 2 and the NMT simulation on ``obs``; CPU seconds per part."""
@@ -117,16 +131,8 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
 
         say('NMT forward simulation (muscles driven by the Stage-2 excitations)')
         c = time.process_time()
-        t_u, u = stage2.t, stage2.u
-
-        def excitation(t: float) -> np.ndarray:
-            i = min(max(int(np.searchsorted(t_u, t, side='right')) - 1, 0), len(t_u) - 1)
-            return u[i]
-
-        x_init = np.concatenate([skt.q[0], skt.qd[0], stage2.a[0]])
-        t_end = float(t_u[-1]) + settings.flight_s
-        nmt_sim = simulate_musculoskeletal_rk4(model, x_init, skt.x0, excitation, t_end,
-                                               settings.rate_hz)
+        nmt_sim = simulate_stage2(model, stage2, skt.q[0], skt.qd[0], skt.x0,
+                                  float(stage2.t[-1]) + settings.flight_s, settings.rate_hz)
         cpu['nmt_simulation'] = time.process_time() - c
     cpu['nmt_total'] = cpu['stage1'] + cpu.get('stage2', 0.0)
     return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu)
