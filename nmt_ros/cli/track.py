@@ -1,8 +1,9 @@
 """``nmt track BAG --out DIR``: batch NMT (Stage 1, IVD, Stage 2, NMT simulation) on a bag.
 
-Stage 1 is by default optimal tracking of all observations (``--stage1 skt``: the paper's
-skeletal motion tracker, whose result is also its initial guess); ``metrics.json`` says which
-(``stage1_method``; its ``skt`` block holds the Stage-1 results either way).
+Stage 1 is by default optimal tracking of all observations with the joint torques made by the
+model's muscles (``--stage1 optimal``: free joint torques; ``--stage1 skt``: the paper's
+skeletal motion tracker, whose result is also the others' initial guess); ``metrics.json`` says
+which (``stage1_method``; its ``skt`` block holds the Stage-1 results either way).
 
 Writes ``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time) and,
 when the bag carries ``/truth/*``, ``DIR/metrics.json`` and the paper-style figures.
@@ -23,10 +24,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Stage 2 over the whole horizon (the paper) or receding windows")
     parser.add_argument('--window', type=float, default=None,
                         help='Stage 2 window length H in s (windowed mode)')
-    parser.add_argument('--stage1', choices=('optimal', 'skt'), default='optimal',
-                        help='Stage 1: optimal tracking of all observations over the trial '
-                        "(default: the most accurate offline), or the paper's skeletal motion "
-                        'tracker (what the live graph runs)')
+    parser.add_argument('--stage1', choices=('optimal_muscle', 'optimal', 'skt'),
+                        default='optimal_muscle',
+                        help='Stage 1: optimal tracking of all observations over the trial with '
+                        'muscle-made joint torques (default: the most accurate, offline), the '
+                        "same with free joint torques, or the paper's skeletal motion tracker "
+                        '(what the live graph runs)')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -36,7 +39,7 @@ def _say(msg: str) -> None:
 
 
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
-              figures: bool = True, say: callable = _say, stage1: str = 'optimal',
+              figures: bool = True, say: callable = _say, stage1: str = 'optimal_muscle',
               ) -> dict | None:
     """Run the NMT on ``bag``, write the outputs; returns the metrics (None without truth)."""
     from nmt_ros.io.bags import bag_info

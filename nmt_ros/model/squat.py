@@ -123,6 +123,20 @@ def rest_activations(model: JumperModel, theta: np.ndarray, tau: np.ndarray,
                            exact=bool(np.max(np.abs(residual)) <= tol))
 
 
+def rest_activations_for_posture(model: JumperModel, q: np.ndarray,
+                                 x0: np.ndarray) -> np.ndarray:
+    """a0 [m] holding the generalized posture ``q`` [6] at rest on springs anchored at ``x0``.
+
+    The joint torques are those of Eq. 1 with qd = qdd = 0 and the springs' wrench at rest;
+    the activations are ``rest_activations`` of them (min sum a^2).
+    """
+    q = np.asarray(q, dtype=float).reshape(6)
+    s0 = model.call(model.contact_outputs, q, np.zeros(6), x0)[0]
+    tau0, _ = model.inverse_dynamics(q, np.zeros(6), np.zeros(6), np.asarray(s0)[None])
+    theta = model.call(model.joint_angles, q)[0]
+    return rest_activations(model, theta, tau0[0]).a
+
+
 def _least_norm(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     """argmin 1/2 |a|^2 s.t. A a = b, 0 <= a <= 1 (SLSQP, then exact on the free set)."""
     n = A.shape[1]

@@ -79,6 +79,9 @@ def compute_metrics(model: JumperModel, run: NMTRun, truth: Truth,
     }
     if obs_m_err > 0:
         out['skt']['moment_error_reduction'] = float(1 - s_err[2] / obs_m_err)
+    if skt.muscles is not None:      # muscle-driven Stage 1: its own muscle forces
+        f1_err = _rms(skt.muscles['f'][m] - truth.f[idx])
+        out['skt']['muscle_force_rms_pct_f0'] = _named(MUSCLES, 100 * f1_err / f0)
 
     ivd = run.ivd
     mi = ivd.t <= lo

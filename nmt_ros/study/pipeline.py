@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.model.squat import rest_activations
+from nmt_ros.model.squat import rest_activations_for_posture
 from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
 from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
@@ -27,6 +27,8 @@ from nmt_ros.tracking.skeletal_tracker import (
     track,
 )
 
+STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle')
+
 
 @dataclass(frozen=True)
 class NMTSettings:
@@ -34,7 +36,9 @@ class NMTSettings:
 
     conditioning: ConditioningSettings = ConditioningSettings()
     skt: SKTSettings = SKTSettings()
-    stage1: str = 'skt'                  # 'skt' (the paper) | 'optimal' (optimal tracking)
+    # 'skt' (the paper) | 'optimal' (optimal tracking, free joint torques) |
+    # 'optimal_muscle' (optimal tracking with the joint torques made by the muscles)
+    stage1: str = 'skt'
     stage2_mode: str = 'full'            # 'full' (the paper) | 'windowed'
     window_length_s: float | None = None  # windowed mode: H (default from stage2.yaml)
     rate_hz: float = 1080.0
@@ -91,14 +95,16 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     say('Stage 1: skeletal motion tracker')
     skt = track(model, cond, settings.skt, settings.rate_hz)
     cpu['stage1'] = skt.cpu_s + cpu['conditioning']
-    if settings.stage1 == 'optimal' and skt.ok:
-        from nmt_ros.tracking.optimal_tracker import track_optimal
+    if settings.stage1 in STAGE1_METHODS[1:] and skt.ok:
+        from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 
-        say('Stage 1: optimal tracking of all observations (from the tracker\'s result)')
-        skt = track_optimal(model, obs, skt)
+        actuation = 'muscle' if settings.stage1 == 'optimal_muscle' else 'torque'
+        say(f'Stage 1: optimal tracking of all observations, {actuation} actuation '
+            '(from the tracker\'s result)')
+        skt = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation=actuation))
         cpu['stage1'] += skt.cpu_s
-    elif settings.stage1 not in ('skt', 'optimal'):
-        raise ValueError(f"stage1 must be 'skt' or 'optimal', not {settings.stage1!r}")
+    elif settings.stage1 not in STAGE1_METHODS:
+        raise ValueError(f'stage1 must be one of {STAGE1_METHODS}, not {settings.stage1!r}')
     if not skt.ok:
         say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
             f'{skt.events[0]["t"]:.3f} s')
@@ -118,11 +124,8 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         t_stop = (skt.liftoff_s if np.isfinite(skt.liftoff_s) else skt.t[-1])
         keep = skt.t <= t_stop + settings.stage2_margin_s
         th, thd, thdd = joint_kinematics(model, skt.q[keep], skt.qd[keep], skt.qdd[keep])
-        # Initial activations: those that hold the tracked initial posture at rest (the
-        # torques of Eq. 1 with qd = qdd = 0 and the springs' wrench), min sum a^2.
-        s0 = model.call(model.contact_outputs, skt.q[0], np.zeros(6), skt.x0)[0]
-        tau0, _ = model.inverse_dynamics(skt.q[0], np.zeros(6), np.zeros(6), s0[None])
-        a0 = rest_activations(model, th[0], tau0[0]).a
+        # Initial activations: those that hold the tracked initial posture at rest.
+        a0 = rest_activations_for_posture(model, skt.q[0], skt.x0)
         tracker = NeuromuscularTracker(model)
         stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
                                mode=settings.stage2_mode,

@@ -114,14 +114,17 @@ def noise_sweep(model: JumperModel, truth: Truth, scales: list[float], seeds: li
 
 
 def optimal_study(model: JumperModel, truth: Truth, obs: object, seeds: list[int],
-                  obs_settings: ObservationSettings, say: callable) -> dict:
-    """The whole NMT with Stage 1 by optimal tracking (seed 0 = the shipped observations)."""
+                  obs_settings: ObservationSettings, say: callable,
+                  stage1: str = 'optimal') -> dict:
+    """The whole NMT with Stage 1 by optimal tracking (``stage1``: 'optimal', free joint
+    torques, or 'optimal_muscle', muscle-made torques); seed 0 = the shipped observations."""
     from nmt_ros.study.metrics import compute_metrics
 
-    settings = NMTSettings(stage1='optimal')
+    settings = NMTSettings(stage1=stage1)
     run = run_nmt(model, obs, settings)
     shipped = compute_metrics(model, run, truth)
-    say(f'shipped bag: Stage 1 torque % {_short(shipped["skt"]["torque_rms_pct_peak"])}, NMT '
+    say(f'{stage1}, shipped bag: Stage 1 torque % '
+        f'{_short(shipped["skt"]["torque_rms_pct_peak"])}, NMT '
         f'jump {shipped["nmt"]["jump_height_m"] * 100:.1f} cm')
     others = seed_study(model, truth, [s for s in seeds if s != 0], obs_settings, say, settings)
     return {'shipped': {k: shipped[k] for k in ('skt', 'nmt')}, 'seeds': others}
@@ -201,8 +204,11 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
     run = run_nmt(model, obs, NMTSettings())
     windows = [0.02, 0.1] if quick else [0.01, 0.02, 0.05, 0.1, 0.15, 0.2]
     metrics['stage2_windows'] = window_study(model, run, truth, windows, say)
-    say('[6/6] beyond the paper: Stage 1 by optimal tracking, same observations and seeds')
+    say('[6/6] beyond the paper: Stage 1 by optimal tracking (joint torques free, then made by '
+        'the muscles), same observations and seeds')
     metrics['optimal_stage1'] = optimal_study(model, truth, obs, [0] + seeds, obs_settings, say)
+    metrics['muscle_stage1'] = optimal_study(model, truth, obs, [0] + seeds, obs_settings, say,
+                                             stage1='optimal_muscle')
     metrics['settings'] = {'nmt': _settings_dict(NMTSettings()), 'quick': quick}
     metrics['wall_s'] = time.perf_counter() - t0
     (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
@@ -213,34 +219,41 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
 
 def _optimal_report(m: dict) -> list[str]:
     """Rows for Stage 1 by optimal tracking next to the paper's tracker."""
-    if 'optimal_stage1' not in m:
+    studies = [(m[k], name) for k, name in (('optimal_stage1', 'optimal, free torques'),
+                                            ('muscle_stage1', 'optimal, muscle torques'))
+               if k in m]
+    if not studies:
         return []
-    o = m['optimal_stage1']
-    sk, nm = o['shipped']['skt'], o['shipped']['nmt']
-    seeds = o['seeds']['summary']
-    out = ['### Beyond the paper: Stage 1 by optimal tracking (offline)', '',
-           '| | paper\'s tracker (SKT) | optimal tracking |', '|---|---|---|']
-    pairs = [
-        ('torque RMS % of peak', _short(m['skt']['torque_rms_pct_peak']),
-         _short(sk['torque_rms_pct_peak'])),
-        ('seeds: mean torque %', '/'.join(f'{v["mean"]:.1f}' for v in
-                                          m['seeds']['summary']['skt_torque_pct'].values()),
-         '/'.join(f'{v["mean"]:.1f}' for v in seeds['skt_torque_pct'].values())),
-        ('angles RMS deg', _short(m['skt']['angle_rms_deg']), _short(sk['angle_rms_deg'])),
-        ('GRF RMS N', f'{m["skt"]["grf_rms_n"]["fore_aft"]:.1f} / '
-         f'{m["skt"]["grf_rms_n"]["vertical"]:.1f}',
-         f'{sk["grf_rms_n"]["fore_aft"]:.1f} / {sk["grf_rms_n"]["vertical"]:.1f}'),
-        ('moment RMS N m', f'{m["skt"]["moment_rms_nm"]:.1f}', f'{sk["moment_rms_nm"]:.1f}'),
-        ('Stage 1 CPU s', f'{m["skt"]["cpu_s"]:.2f}', f'{sk["cpu_s"]:.2f}'),
-        ('NMT jump cm', f'{m["nmt"]["jump_height_m"] * 100:.1f}',
-         f'{nm["jump_height_m"] * 100:.1f}'),
-        ('seeds: NMT jump cm (mean)',
-         f'{m["seeds"]["summary"]["nmt_jump_height_m"]["mean"] * 100:.1f}',
-         f'{seeds["nmt_jump_height_m"]["mean"] * 100:.1f}'),
-        ('muscle force RMS % F0', _short(m['nmt']['muscle_force_rms_pct_f0']),
-         _short(nm['muscle_force_rms_pct_f0'])),
+
+    def seed_mean(summary: dict, key: str) -> str:
+        return '/'.join(f'{v["mean"]:.1f}' for v in summary[key].values())
+
+    def grf(b: dict) -> str:
+        return f'{b["grf_rms_n"]["fore_aft"]:.1f} / {b["grf_rms_n"]["vertical"]:.1f}'
+
+    cols = [(m['skt'], m['nmt'], m['seeds']['summary'])] + [
+        (o['shipped']['skt'], o['shipped']['nmt'], o['seeds']['summary']) for o, _ in studies]
+    rows = [
+        ('torque RMS % of peak', lambda sk, nm, se: _short(sk['torque_rms_pct_peak'])),
+        ('seeds: mean torque %', lambda sk, nm, se: seed_mean(se, 'skt_torque_pct')),
+        ('angles RMS deg', lambda sk, nm, se: _short(sk['angle_rms_deg'])),
+        ('GRF RMS N', lambda sk, nm, se: grf(sk)),
+        ('moment RMS N m', lambda sk, nm, se: f'{sk["moment_rms_nm"]:.1f}'),
+        ('Stage 1 CPU s', lambda sk, nm, se: f'{sk["cpu_s"]:.2f}'),
+        ('Stage 2 tracking % of Stage-1 peak',
+         lambda sk, nm, se: _short(nm['stage2_tracking_rms_pct_peak'])),
+        ('NMT jump cm', lambda sk, nm, se: f'{nm["jump_height_m"] * 100:.1f}'),
+        ('seeds: NMT jump cm (mean / lowest)',
+         lambda sk, nm, se: f'{se["nmt_jump_height_m"]["mean"] * 100:.1f} / '
+                            f'{se["nmt_jump_height_m"]["best"] * 100:.1f}'),
+        ('seeds: mean Stage 2 tracking %',
+         lambda sk, nm, se: seed_mean(se, 'stage2_tracking_pct')),
+        ('muscle force RMS % F0', lambda sk, nm, se: _short(nm['muscle_force_rms_pct_f0'])),
     ]
-    out += [f'| {a} | {b} | {c} |' for a, b, c in pairs]
+    out = ['### Beyond the paper: Stage 1 by optimal tracking (offline)', '',
+           '| | paper\'s tracker (SKT) | ' + ' | '.join(name for _, name in studies) + ' |',
+           '|---|---|' + '---|' * len(studies)]
+    out += ['| ' + ' | '.join([label] + [fmt(*c) for c in cols]) + ' |' for label, fmt in rows]
     return out + ['']
 
 

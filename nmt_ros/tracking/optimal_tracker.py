@@ -17,6 +17,17 @@ on its own, so the ground forces inform the whole-body accelerations the angles 
 after a 10 Hz filter. The result is again a dynamically consistent motion of the model (the
 collocation solution) with its torques. Offline only: about 1 s of CPU for the 0.25 s jump.
 The skeletal tracker's result is the initial guess.
+
+With ``actuation='muscle'`` the three torques are not free: they are the nine muscles' torques
+C(theta) F_MT(a, l_MT, v_MT) (Eq. 8b, 10b), with activations driven by excitations
+0 <= u <= 1 through Eq. 8a (trapezoidal, like the skeleton), and the torque smoothness term
+replaced by small excitation and excitation-rate terms. This is OpenSim Moco's muscle-driven
+tracking problem posed on the raw observations. The prior it adds is the muscles' capacity:
+torques that no activation pattern can make (the saturated end of a maximal push-off), and
+torque shapes that activation dynamics cannot follow, are excluded, so the estimate is both
+closer to the actual and one that Stage 2 can track. The initial guess of a and u is Stage 2
+on the skeletal tracker's torques. About 5 s of CPU after a one-off 17 s build per trial
+length (bench/bench_stage1.py).
 """
 from __future__ import annotations
 
@@ -46,6 +57,12 @@ class OptimalTrackingSettings:
     # three-harmonic bias (tested on both shapes; 3 terms leave the hip 2 % worse).
     moment_bias_terms: int = 7
     torque_rate_weight: float = 1e-3
+    # 'torque': the three joint torques are free (the paper's Stage 1 model);
+    # 'muscle': they are the nine muscles' torques, C(theta) F(a, l, v), with activations
+    # driven by excitations u in [0, 1] (Eq. 8): only torques the muscles can make.
+    actuation: str = 'torque'
+    excitation_weight: float = 1e-2            # muscle actuation: sum u^2 dt / T
+    excitation_rate_weight: float = 1e-4       # muscle actuation: sum (du/dt)^2 dt / T x s^2
     liftoff_force_bw: float = 0.02
     tol: float = 1e-6
     max_iter: int = 2000
@@ -68,27 +85,41 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
     q = ca.MX.sym('q', 6, n + 1)
     qd = ca.MX.sym('qd', 6, n + 1)
     qdd_v = ca.MX.sym('qdd', 6, n + 1)
-    tau_v = ca.MX.sym('tau', 3, n + 1)
     cb = ca.MX.sym('c_bias', st.moment_bias_terms)
     w = ca.MX.sym('wrench_obs', n + 1, 3)
     ang = ca.MX.sym('angles_obs', n_a, 4)
     x0 = ca.MX.sym('anchors', 2)
-    qdd, tau = _QDD_SCALE * qdd_v, _TAU_SCALE * tau_v
-
+    qdd = _QDD_SCALE * qdd_v
     x = ca.SX.sym('x', 12)
-    a = ca.SX.sym('a', 6)
-    u = ca.SX.sym('u', 3)
+    acc = ca.SX.sym('acc', 6)
     xa = ca.SX.sym('x0', 2)
     scale = ca.DM([1 / 100.0] * 4 + [1 / bw] * 2)
-    node = ca.Function('ocp_node', [x, a, u, xa], [
-        scale * model.dynamics_residual(x[:6], x[6:], a, u, xa),
-        model.contact_outputs(x[:6], x[6:], xa)])
-    residual, s_model = node.map(n + 1, 'serial')(ca.vertcat(q, qd), qdd, tau,
-                                                 ca.repmat(x0, 1, n + 1))
+    muscle = st.actuation == 'muscle'
+    if muscle:
+        nm = model.p.muscles.f0.size
+        act = ca.MX.sym('a', nm, n + 1)
+        exc = ca.MX.sym('u', nm, n + 1)
+        aa, uu = ca.SX.sym('a', nm), ca.SX.sym('u', nm)
+        tau_m, _ = model.muscle_torques(x[:6], x[6:], aa)
+        node = ca.Function('ocp_node', [x, acc, aa, uu, xa], [
+            scale * model.dynamics_residual(x[:6], x[6:], acc, tau_m, xa),
+            model.contact_outputs(x[:6], x[6:], xa), model.activation_dynamics(uu, aa)])
+        residual, s_model, adot = node.map(n + 1, 'serial')(
+            ca.vertcat(q, qd), qdd, act, exc, ca.repmat(x0, 1, n + 1))
+        extra = [ca.vec(act[:, 1:] - act[:, :-1] - h / 2 * (adot[:, 1:] + adot[:, :-1]))]
+    else:
+        tau_v = ca.MX.sym('tau', 3, n + 1)
+        uu = ca.SX.sym('u', 3)
+        node = ca.Function('ocp_node', [x, acc, uu, xa], [
+            scale * model.dynamics_residual(x[:6], x[6:], acc, uu, xa),
+            model.contact_outputs(x[:6], x[6:], xa)])
+        residual, s_model = node.map(n + 1, 'serial')(ca.vertcat(q, qd), qdd,
+                                                     _TAU_SCALE * tau_v, ca.repmat(x0, 1, n + 1))
+        extra = []
     constraints = ca.vertcat(
         ca.vec(q[:, 1:] - q[:, :-1] - h / 2 * (qd[:, 1:] + qd[:, :-1])),   # trapezoidal
         ca.vec(qd[:, 1:] - qd[:, :-1] - h / 2 * (qdd[:, 1:] + qdd[:, :-1])),
-        ca.vec(residual), qd[:, 0], qdd_v[:, 0])                             # Eq. 1; at rest
+        ca.vec(residual), qd[:, 0], qdd_v[:, 0], *extra)                     # Eq. 1; at rest
     t_grid = np.arange(n + 1) * h
     basis = np.column_stack([(t_grid / t_grid[-1]) ** (k + 1)
                              for k in range(st.moment_bias_terms)])
@@ -97,14 +128,22 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
     cost = ca.sumsqr((s_fit - w) / ca.repmat(ca.DM(sig_s).T, n + 1, 1))
     sig_a = np.radians(st.angle_sd_deg) * st.angle_bias_allowance
     cost += ca.sumsqr((q[0:4, list(idx)].T - ang) / ca.repmat(ca.DM(sig_a).T, n_a, 1))
-    cost += st.torque_rate_weight * n * ca.sumsqr(tau_v[:, 1:] - tau_v[:, :-1]) / h
-    z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), ca.vec(tau_v), cb)
+    if muscle:
+        t_total = n * h
+        cost += st.excitation_weight * h / t_total * ca.sumsqr(exc)
+        cost += st.excitation_rate_weight / (h * t_total) * ca.sumsqr(exc[:, 1:] - exc[:, :-1])
+        z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), ca.vec(act), ca.vec(exc), cb)
+    else:
+        cost += st.torque_rate_weight * n * ca.sumsqr(tau_v[:, 1:] - tau_v[:, :-1]) / h
+        z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), ca.vec(tau_v), cb)
     p = ca.vertcat(ca.vec(w), ca.vec(ang), x0)
     solver = ca.nlpsol('stage1_tracking', 'ipopt',
                        {'x': z, 'p': p, 'f': cost, 'g': constraints},
                        {'expand': True, 'print_time': False, 'show_eval_warnings': False,
                         'ipopt': {'print_level': 0, 'tol': st.tol, 'max_iter': st.max_iter,
-                                  'linear_solver': 'mumps', 'sb': 'yes'}})
+                                  'linear_solver': 'mumps', 'sb': 'yes',
+                                  # the guess is close: a small barrier keeps IPOPT near it
+                                  'mu_init': 1e-3}})
     _SOLVERS[key] = (solver, basis)
     return _SOLVERS[key]
 
@@ -128,27 +167,61 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
     idx = np.rint((obs.t_angles - t_w[0]) / h).astype(int)
     keep = (idx >= 0) & (idx <= n)
     solver, basis = _build(model, n, h, idx[keep], st)
-    z0 = np.concatenate([_on_grid(guess.q, n).ravel(), _on_grid(guess.qd, n).ravel(),
-                         (_on_grid(guess.qdd, n) / _QDD_SCALE).ravel(),
-                         (_on_grid(guess.tau, n) / _TAU_SCALE).ravel(),
-                         np.zeros(st.moment_bias_terms)])
+    kin0 = [_on_grid(guess.q, n).ravel(), _on_grid(guess.qd, n).ravel(),
+            (_on_grid(guess.qdd, n) / _QDD_SCALE).ravel()]
+    n_kin = 18 * (n + 1)
+    lbx = np.full(n_kin, -np.inf)
+    ubx = np.full(n_kin, np.inf)
+    if st.actuation == 'muscle':
+        nm = model.p.muscles.f0.size
+        drive0 = [_on_grid(x, n).ravel() for x in _muscle_guess(model, guess)]
+        lbx = np.concatenate([lbx, np.zeros(2 * nm * (n + 1))])
+        ubx = np.concatenate([ubx, np.ones(2 * nm * (n + 1))])
+    else:
+        drive0 = [(_on_grid(guess.tau, n) / _TAU_SCALE).ravel()]
+        lbx = np.concatenate([lbx, np.full(3 * (n + 1), -np.inf)])
+        ubx = np.concatenate([ubx, np.full(3 * (n + 1), np.inf)])
+    z0 = np.concatenate(kin0 + drive0 + [np.zeros(st.moment_bias_terms)])
+    lbx = np.concatenate([lbx, np.full(st.moment_bias_terms, -np.inf)])
+    ubx = np.concatenate([ubx, np.full(st.moment_bias_terms, np.inf)])
     p = np.concatenate([obs.wrench[:n + 1].ravel(order='F'),
                         obs.angles[keep].ravel(order='F'), x0])
-    sol = solver(x0=z0, p=p, lbg=0.0, ubg=0.0)
+    sol = solver(x0=z0, p=p, lbg=0.0, ubg=0.0, lbx=lbx, ubx=ubx)
     stats = solver.stats()
     zz = np.asarray(sol['x']).ravel()
-    blocks = np.split(zz[:21 * (n + 1)], np.cumsum([6, 6, 6, 3])[:-1] * (n + 1))
-    Q, QD, QDD, TAU = (b.reshape(n + 1, -1) for b in blocks)
-    QDD, TAU = QDD * _QDD_SCALE, TAU * _TAU_SCALE
+    Q, QD, QDD = (b.reshape(n + 1, -1) for b in np.split(zz[:n_kin], 3))
+    QDD = QDD * _QDD_SCALE
+    drive = zz[n_kin:-st.moment_bias_terms]
+    muscles = None
+    if st.actuation == 'muscle':
+        A, U = (b.reshape(n + 1, -1) for b in np.split(drive, 2))
+        TAU, F = model.batch(model.muscle_torques, Q, QD, A)
+        muscles = {'a': A, 'u': U, 'f': F}
+    else:
+        TAU = drive.reshape(n + 1, -1) * _TAU_SCALE
     s, = model.batch(model.contact_outputs, Q, QD, x0)
     ok = bool(stats['success'])
     res = SKTResult(t=t_w - t_w[0], q=Q, qd=QD, qdd=QDD, tau=TAU, s=s,
-                    bias=basis @ zz[21 * (n + 1):], residual=np.zeros((n + 1, 7)), x0=x0,
+                    bias=basis @ zz[-st.moment_bias_terms:], residual=np.zeros((n + 1, 7)), x0=x0,
                     status='ok' if ok else 'solver: ' + str(stats['return_status']),
                     events=[] if ok else [{'t': 0.0, 'reason': str(stats['return_status'])}],
-                    cpu_s=time.process_time() - c0)
+                    cpu_s=time.process_time() - c0, muscles=muscles)
     res.liftoff_s = liftoff_time(res.t, s[:, 1], st.liftoff_force_bw * bw)
     return res
+
+
+def _muscle_guess(model: JumperModel, guess: SKTResult) -> tuple[np.ndarray, np.ndarray]:
+    """Activations and excitations [n, 9] that make the guess's torques: Stage 2 on them
+    (up to the guess's lift-off + 10 ms), from the activations that hold its first posture."""
+    from nmt_ros.model.squat import rest_activations_for_posture
+    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
+
+    t_stop = guess.liftoff_s if np.isfinite(guess.liftoff_s) else guess.t[-1]
+    keep = guess.t <= t_stop + 0.01
+    theta = [model.batch(model.joint_angles, x[keep])[0] for x in (guess.q, guess.qd, guess.qdd)]
+    a0 = rest_activations_for_posture(model, guess.q[0], guess.x0)
+    stage2 = NeuromuscularTracker(model).track(guess.t[keep], guess.tau[keep], *theta, a0)
+    return stage2.a, stage2.u
 
 
 def _on_grid(values: np.ndarray, n: int) -> np.ndarray:

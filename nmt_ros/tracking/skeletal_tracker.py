@@ -188,6 +188,7 @@ class SKTResult:
     events: list = field(default_factory=list)
     cpu_s: float = 0.0
     liftoff_s: float = float('nan')
+    muscles: dict | None = None  # muscle-driven Stage 1 only: {'a', 'u', 'f'} [n, 9]
 
     @property
     def ok(self) -> bool:

@@ -1,0 +1,133 @@
+"""Stage 1 by optimal tracking with muscle-made joint torques (beyond the paper).
+
+Checked against independent truth: the synthetic ground truth (torques, jump), a forward
+simulation of the estimate's own excitations (physics, not the collocation), and Stage 2's
+ability to reproduce the torques within the muscles' capacity.
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from nmt_ros.study.metrics import jump_from
+from nmt_ros.study.observations import ObservationSettings, make_observations
+from nmt_ros.study.pipeline import joint_kinematics
+from nmt_ros.study.reference import simulate_musculoskeletal_rk4
+from nmt_ros.tracking.conditioning import condition
+from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
+from nmt_ros.tracking.skeletal_tracker import track
+
+MUSCLE = OptimalTrackingSettings(actuation='muscle')
+
+
+def contact_pct(t, est, truth, ref):
+    """RMS over the contact phase, % of each column's peak in the truth."""
+    m = t <= truth.liftoff_s
+    idx = np.rint(t[m] * 1080).astype(int)
+    peak = np.abs(ref[truth.t <= truth.liftoff_s]).max(axis=0)
+    return 100 * np.sqrt(np.mean((est[m] - ref[idx]) ** 2, axis=0)) / peak
+
+
+def stage1(model, obs):
+    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    assert skt.ok
+    return track_optimal(model, obs, skt, MUSCLE)
+
+
+@pytest.fixture(scope='module')
+def shipped(model, obs):
+    return stage1(model, obs)
+
+
+def actual_jump(model, truth):
+    return jump_from(model, truth.t, truth.q, truth.qd, truth.liftoff_s)['jump_height_m']
+
+
+def test_recovers_the_truth_from_clean_observations(model, truth, obs):
+    """Noise- and bias-free samples of the actual jump: torques within 0.2 % of peak, angles
+    within 0.05 deg and the jump within 0.2 %."""
+    clean = dataclasses.replace(
+        obs, angles=truth.q[np.rint(obs.t_angles * 1080).astype(int), :4],
+        wrench=truth.s[np.rint(obs.t_wrench * 1080).astype(int)])
+    res = stage1(model, clean)
+    assert res.ok, res.status
+    assert (contact_pct(res.t, res.tau, truth, truth.tau) < 0.2).all()
+    m = res.t <= truth.liftoff_s
+    idx = np.rint(res.t[m] * 1080).astype(int)
+    assert np.degrees(np.abs(res.q[m, :4] - truth.q[idx, :4])).max() < 0.05
+    jump = jump_from(model, res.t, res.q, res.qd, res.liftoff_s)['jump_height_m']
+    assert abs(jump / actual_jump(model, truth) - 1) < 0.002
+
+
+def test_shipped_trial_torques_and_forces(model, truth, shipped):
+    """Noisy, biased shipped trial: torques within 3 % of peak on every joint (the paper's
+    tracker: 4 / 12 / 22 %), ground forces within 2 % of body weight, moment bias removed."""
+    assert shipped.ok, shipped.status
+    assert (contact_pct(shipped.t, shipped.tau, truth, truth.tau) < 3.0).all()
+    s_pct = contact_pct(shipped.t, shipped.s, truth, truth.s)
+    bw = model.p.body_weight
+    peak_s = np.abs(truth.s[truth.t <= truth.liftoff_s]).max(axis=0)
+    assert (s_pct[:2] * peak_s[:2] / 100 < 0.021 * bw).all()
+    assert abs(shipped.liftoff_s - truth.liftoff_s) < 0.002
+
+
+def test_excitations_are_bounded_and_reproduce_the_motion(model, truth, shipped):
+    """The estimate is a motion the muscles make: excitations and activations in [0, 1], and
+    a forward simulation of its excitations (RK4, independent of the collocation) follows it
+    open loop through the whole push-off: angles within 0.5 deg (the trapezoidal rule's error
+    at 1080 Hz, grown by the unstable open loop: 0.41 deg measured), lift-off within 2 ms (two
+    sample periods: the simulation's zero-force instant against the estimate's 2 % BW one),
+    jump within 0.3 %."""
+    mus = shipped.muscles
+    for key in ('a', 'u'):
+        assert mus[key].min() >= -1e-9 and mus[key].max() <= 1 + 1e-9
+    t_u, u = shipped.t, mus['u']
+
+    def excitation(t):
+        return u[min(int(np.searchsorted(t_u, t + 1e-12, side='right')) - 1, len(t_u) - 1)]
+
+    x_init = np.concatenate([shipped.q[0], shipped.qd[0], mus['a'][0]])
+    sim = simulate_musculoskeletal_rk4(model, x_init, shipped.x0, excitation,
+                                       shipped.liftoff_s + 0.01, 1080.0)
+    k = np.searchsorted(shipped.t, sim.t[sim.t <= shipped.liftoff_s] - 1e-9)
+    assert np.degrees(np.abs(sim.x[:k.size, :4] - shipped.q[k, :4])).max() < 0.5
+    assert abs(sim.liftoff_s - shipped.liftoff_s) < 0.002
+    j_sim = jump_from(model, sim.t, sim.x[:, :6], sim.x[:, 6:12], sim.liftoff_s)
+    j_est = jump_from(model, shipped.t, shipped.q, shipped.qd, shipped.liftoff_s)
+    assert abs(j_sim['jump_height_m'] / j_est['jump_height_m'] - 1) < 0.003
+
+
+def test_stage2_tracks_the_muscle_made_torques(model, truth, shipped):
+    """Torques the muscles can make are ones Stage 2 can track: under 3 % of each joint's peak
+    (issue 5's target; on free-torque Stage-1 estimates the ankle misses it)."""
+    from nmt_ros.model.squat import rest_activations_for_posture
+    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
+
+    keep = shipped.t <= shipped.liftoff_s + 0.01
+    th = joint_kinematics(model, shipped.q[keep], shipped.qd[keep], shipped.qdd[keep])
+    a0 = rest_activations_for_posture(model, shipped.q[0], shipped.x0)
+    s2 = NeuromuscularTracker(model).track(shipped.t[keep], shipped.tau[keep], *th, a0)
+    assert (100 * s2.rms_error_relative < 3.0).all(), s2.rms_error_relative
+
+
+def test_other_noise_realisation(model, truth):
+    """A noise seed the defaults were not tuned on: torques within 5 % of peak."""
+    obs, _ = make_observations(truth, ObservationSettings(seed=17),
+                               body_weight=model.p.body_weight)
+    res = stage1(model, obs)
+    assert res.ok, res.status
+    assert (contact_pct(res.t, res.tau, truth, truth.tau) < 5.0).all()
+
+
+def test_harsher_bias_still_beats_the_papers_tracker(model, truth):
+    """Three-harmonic biases (harsher than the paper's one-lobe): on this seed the paper's
+    tracker is off by 6 / 19 / 13 % of peak; the muscle-made estimate is better on every
+    joint (measured 1.7 / 7.1 / 5.4 %)."""
+    obs, _ = make_observations(truth, ObservationSettings(seed=17, bias_shape='harmonic'),
+                               body_weight=model.p.body_weight)
+    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    res = track_optimal(model, obs, skt, MUSCLE)
+    assert res.ok, res.status
+    e_opt = contact_pct(res.t, res.tau, truth, truth.tau)
+    e_skt = contact_pct(skt.t, skt.tau, truth, truth.tau)
+    assert (e_opt < e_skt).all(), (e_opt, e_skt)
