@@ -3,6 +3,10 @@
 Prints the CPU time of conditioning + tracking for the shipped trial, its ratio to the trial's
 duration (< 1: faster than real time), exact vs numerical Jacobians, RK4 substeps 2 vs 4, and a
 profile of where the time goes. The paper: 28 s of CPU for Stage 1.
+
+Then Stage 1 by optimal tracking (offline, beyond the paper), free and muscle-made torques:
+the one-off NLP build per trial length, the solve, IPOPT iterations and where the solve's CPU
+goes (CasADi's Hessian and Jacobian evaluations vs the rest, mostly MUMPS).
 """
 import cProfile
 import json
@@ -13,6 +17,12 @@ import time
 from nmt_ros.io.trial_bag import read_observations
 from nmt_ros.model.jumper import default_model
 from nmt_ros.tracking.conditioning import condition
+from nmt_ros.tracking.optimal_tracker import (
+    OptimalTrackingSettings,
+    _build,
+    collocation_grid,
+    track_optimal,
+)
 from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
@@ -39,11 +49,33 @@ def main() -> None:
         cpu, res = timed(model, obs, st)
         out[name] = {'cpu_s': cpu, 'real_time_ratio': cpu / duration, 'status': res.status}
     print(json.dumps(out, indent=1))
+    print(json.dumps(optimal(model, obs, duration), indent=1))
     prof = cProfile.Profile()
     prof.enable()
     track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     prof.disable()
     pstats.Stats(prof).sort_stats('cumulative').print_stats(12)
+
+
+def optimal(model, obs, duration: float) -> dict:
+    """Build and solve times of optimal tracking (torque and muscle actuation)."""
+    guess = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    n, h, idx, keep = collocation_grid(obs)
+    out = {}
+    for actuation in ('torque', 'muscle'):
+        st = OptimalTrackingSettings(actuation=actuation)
+        c = time.process_time()
+        solver, _ = _build(model, n, h, idx[keep], st)
+        build = time.process_time() - c
+        res = track_optimal(model, obs, guess, st)
+        stats = solver.stats()
+        out[actuation] = {
+            'build_cpu_s': build, 'solve_cpu_s': res.cpu_s,
+            'solve_real_time_ratio': res.cpu_s / duration, 'iterations': stats['iter_count'],
+            'status': res.status,
+            'casadi_cpu_s': {k[len('t_proc_nlp_'):]: v for k, v in stats.items()
+                             if k.startswith('t_proc_nlp_')}}
+    return {'optimal_tracking': out}
 
 
 if __name__ == '__main__':

@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'muscle-made joint torques (default: the most accurate, offline), the '
                         "same with free joint torques, or the paper's skeletal motion tracker "
                         '(what the live graph runs)')
+    parser.add_argument('--stage2-kr', type=float, default=None,
+                        help='Stage 2 effort weight kR (default: stage2.yaml, the paper\'s 1000; '
+                        'lower tracks the Stage-1 torques more closely)')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -40,19 +43,21 @@ def _say(msg: str) -> None:
 
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
               figures: bool = True, say: callable = _say, stage1: str = 'optimal_muscle',
-              ) -> dict | None:
+              stage2_k_r: float | None = None) -> dict | None:
     """Run the NMT on ``bag``, write the outputs; returns the metrics (None without truth)."""
     from nmt_ros.io.bags import bag_info
     from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
     from nmt_ros.model.jumper import default_model
     from nmt_ros.study.pipeline import NMTSettings, run_nmt
+    from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
 
     model = default_model()
     obs = read_observations(bag)
     say(f'{bag}: {obs.t_angles.size} angle samples, {obs.t_wrench.size} wrench samples, '
         f'{obs.t_wrench[-1]:.3f} s')
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
-                                          window_length_s=window), progress=say)
+                                          window_length_s=window, stage2_k_r=stage2_k_r),
+                  progress=say)
     out.mkdir(parents=True, exist_ok=True)
     write_estimates_bag(out / 'estimates', model, run, obs.info['epoch_ns'])
     say(f'estimates: {out / "estimates"}')
@@ -68,6 +73,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     metrics = compute_metrics(model, run, truth, po)
     metrics['source_bag'] = str(bag)
     metrics['stage1_method'] = stage1
+    metrics['stage2_k_r'] = (stage2_k_r if stage2_k_r is not None
+                             else load_stage2_settings().k_r)
     metrics['custom_data'] = dict(bag_info(bag).custom_data or {})
     (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
     say(f'metrics: {out / "metrics.json"}')
@@ -90,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
             return 2
         shutil.rmtree(est)
     metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
-                        figures=not args.no_figures, stage1=args.stage1)
+                        figures=not args.no_figures, stage1=args.stage1,
+                        stage2_k_r=args.stage2_kr)
     if metrics:
         from nmt_ros.study.report import summary_lines
 

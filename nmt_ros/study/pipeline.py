@@ -18,7 +18,11 @@ from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
 from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
 from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
-from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, Stage2Result
+from nmt_ros.tracking.neuromuscular_tracker import (
+    NeuromuscularTracker,
+    Stage2Result,
+    load_stage2_settings,
+)
 from nmt_ros.tracking.skeletal_tracker import (
     SKTResult,
     SKTSettings,
@@ -41,6 +45,7 @@ class NMTSettings:
     stage1: str = 'skt'
     stage2_mode: str = 'full'            # 'full' (the paper) | 'windowed'
     window_length_s: float | None = None  # windowed mode: H (default from stage2.yaml)
+    stage2_k_r: float | None = None      # Stage 2 effort weight kR (default: stage2.yaml's)
     rate_hz: float = 1080.0
     stage2_margin_s: float = 0.01        # Stage 2 runs until Stage-1 lift-off + this
     flight_s: float = 0.02               # the NMT simulation runs past its lift-off by this
@@ -126,7 +131,8 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         th, thd, thdd = joint_kinematics(model, skt.q[keep], skt.qd[keep], skt.qdd[keep])
         # Initial activations: those that hold the tracked initial posture at rest.
         a0 = rest_activations_for_posture(model, skt.q[0], skt.x0)
-        tracker = NeuromuscularTracker(model)
+        overrides = {} if settings.stage2_k_r is None else {'k_r': float(settings.stage2_k_r)}
+        tracker = NeuromuscularTracker(model, load_stage2_settings(**overrides))
         stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
                                mode=settings.stage2_mode,
                                window_length=settings.window_length_s)

@@ -65,7 +65,7 @@ def seed_study(model: JumperModel, truth: Truth, seeds: list[int],
                         'muscle_force_pct_f0': m['nmt']['muscle_force_rms_pct_f0'],
                         'nmt_cpu_s': m['nmt']['cpu_s']})
         rows.append(row)
-        say(f'seed {seed}: SKT torque % {_short(row["skt_torque_pct"])}, NMT jump '
+        say(f'seed {seed}: Stage 1 torque % {_short(row["skt_torque_pct"])}, NMT jump '
             f'{row.get("nmt_jump_height_m", float("nan")) * 100:.1f} cm')
     return {'seeds': rows, 'summary': _summarise(rows)}
 
@@ -115,19 +115,65 @@ def noise_sweep(model: JumperModel, truth: Truth, scales: list[float], seeds: li
 
 def optimal_study(model: JumperModel, truth: Truth, obs: object, seeds: list[int],
                   obs_settings: ObservationSettings, say: callable,
-                  stage1: str = 'optimal') -> dict:
+                  stage1: str = 'optimal', run: object | None = None) -> dict:
     """The whole NMT with Stage 1 by optimal tracking (``stage1``: 'optimal', free joint
-    torques, or 'optimal_muscle', muscle-made torques); seed 0 = the shipped observations."""
+    torques, or 'optimal_muscle', muscle-made torques); seed 0 = the shipped observations
+    (``run``: its NMT run if already made)."""
     from nmt_ros.study.metrics import compute_metrics
 
     settings = NMTSettings(stage1=stage1)
-    run = run_nmt(model, obs, settings)
+    run = run if run is not None else run_nmt(model, obs, settings)
     shipped = compute_metrics(model, run, truth)
     say(f'{stage1}, shipped bag: Stage 1 torque % '
         f'{_short(shipped["skt"]["torque_rms_pct_peak"])}, NMT '
         f'jump {shipped["nmt"]["jump_height_m"] * 100:.1f} cm')
     others = seed_study(model, truth, [s for s in seeds if s != 0], obs_settings, say, settings)
     return {'shipped': {k: shipped[k] for k in ('skt', 'nmt')}, 'seeds': others}
+
+
+def stage2_weight_study(model: JumperModel, truth: Truth, run: object, k_rs: list[float],
+                        say: callable) -> list[dict]:
+    """Stage 2 against its effort weight kR (Appendix B: 1000), on the actual torques and
+    kinematics and on ``run``'s Stage 1: tracking, NMT jump, muscle forces vs actual."""
+    from nmt_ros.model.squat import rest_activations_for_posture
+    from nmt_ros.study.metrics import jump_from
+    from nmt_ros.study.pipeline import simulate_stage2
+    from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
+
+    actual = jump_from(model, truth.t, truth.q, truth.qd, truth.liftoff_s)['jump_height_m']
+    f0 = model.p.muscles.f0
+    skt = run.skt
+    inputs = [('actual torques', truth.t, truth.q, truth.qd, truth.qdd, truth.tau, truth.x0,
+               truth.liftoff_s), (f'Stage 1 ({run_label(run)})', skt.t, skt.q, skt.qd, skt.qdd,
+                                  skt.tau, skt.x0, skt.liftoff_s)]
+    rows = []
+    for name, t, q, qd, qdd, tau, x0, lo in inputs:
+        keep = t <= lo + 0.01
+        th = joint_kinematics(model, q[keep], qd[keep], qdd[keep])
+        a0 = rest_activations_for_posture(model, q[0], x0)
+        for k_r in k_rs:
+            tracker = NeuromuscularTracker(model, load_stage2_settings(k_r=k_r))
+            s2 = tracker.track(t[keep], tau[keep], *th, a0)
+            sim = simulate_stage2(model, s2, q[0], qd[0], x0, float(s2.t[-1]) + 0.02)
+            jump = jump_from(model, sim.t, sim.x[:, :6], sim.x[:, 6:12], sim.liftoff_s)
+            m = s2.t <= truth.liftoff_s
+            idx = np.rint(np.interp(s2.t[m], truth.t, np.arange(truth.t.size))).astype(int)
+            f_pct = 100 * np.sqrt(np.mean((s2.f[m] - truth.f[idx]) ** 2, axis=0)) / f0
+            rows.append({'input': name, 'k_r': k_r,
+                         'tracking_pct_peak': dict(zip(JOINTS,
+                                                       (100 * s2.rms_error_relative).tolist())),
+                         'nmt_jump_height_m': jump['jump_height_m'],
+                         'nmt_jump_error_pct': 100 * (jump['jump_height_m'] / actual - 1),
+                         'muscle_force_rms_pct_f0_mean': float(f_pct.mean()),
+                         'muscle_force_rms_pct_f0_max': float(f_pct.max())})
+            say(f'Stage 2 kR {k_r:g} on {name}: NMT jump {rows[-1]["nmt_jump_error_pct"]:+.2f} %'
+                f', forces {f_pct.mean():.2f} % F0 (mean)')
+    return rows
+
+
+def run_label(run: object) -> str:
+    """'muscle-driven optimal tracking' etc. from a run's Stage-1 result."""
+    return 'optimal tracking, muscle torques' if run.skt.muscles is not None else 'Stage 1'
 
 
 def jacobian_study(model: JumperModel, obs: object) -> dict:
@@ -207,8 +253,13 @@ def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
     say('[6/6] beyond the paper: Stage 1 by optimal tracking (joint torques free, then made by '
         'the muscles), same observations and seeds')
     metrics['optimal_stage1'] = optimal_study(model, truth, obs, [0] + seeds, obs_settings, say)
+    muscle_run = run_nmt(model, obs, NMTSettings(stage1='optimal_muscle'))
     metrics['muscle_stage1'] = optimal_study(model, truth, obs, [0] + seeds, obs_settings, say,
-                                             stage1='optimal_muscle')
+                                             stage1='optimal_muscle', run=muscle_run)
+    say('Stage 2 effort weight kR (Appendix B: 1000)')
+    metrics['stage2_weights'] = stage2_weight_study(model, truth, muscle_run,
+                                                    [1000.0, 100.0] if quick
+                                                    else [1000.0, 300.0, 100.0, 30.0], say)
     metrics['settings'] = {'nmt': _settings_dict(NMTSettings()), 'quick': quick}
     metrics['wall_s'] = time.perf_counter() - t0
     (out / 'metrics.json').write_text(json.dumps(metrics, indent=1, default=float))
@@ -290,4 +341,15 @@ def _extra_report(m: dict) -> str:
     for r in m['stage2_windows']:
         lines.append(f'| {r["window_s"] * 1000:.0f} | {r["latency_s"] * 1000:.0f} | '
                      f'{r["max_force_difference_pct_f0"]:.2f} | {r["cpu_s"]:.2f} |')
+    if 'stage2_weights' in m:
+        lines += ['', 'Stage 2 effort weight kR (Appendix B: 1000; `nmt track --stage2-kr`):',
+                  '',
+                  '| input | kR | tracking % of peak | NMT jump error % '
+                  '| forces % F0 (mean / max) |',
+                  '|---|---|---|---|---|']
+        for r in m['stage2_weights']:
+            lines.append(f'| {r["input"]} | {r["k_r"]:g} | {_short(r["tracking_pct_peak"])} | '
+                         f'{r["nmt_jump_error_pct"]:+.2f} | '
+                         f'{r["muscle_force_rms_pct_f0_mean"]:.2f} / '
+                         f'{r["muscle_force_rms_pct_f0_max"]:.2f} |')
     return '\n'.join(lines) + '\n'

@@ -148,6 +148,16 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
     return _SOLVERS[key]
 
 
+def collocation_grid(obs: Observations) -> tuple[int, float, np.ndarray, np.ndarray]:
+    """(n intervals, h [s], grid index of each angle sample, mask of those on the grid):
+    one interval per force-plate sample."""
+    t_w = np.asarray(obs.t_wrench, dtype=float)
+    n = t_w.size - 1
+    h = float(np.mean(np.diff(t_w)))
+    idx = np.rint((np.asarray(obs.t_angles, dtype=float) - t_w[0]) / h).astype(int)
+    return n, h, idx, (idx >= 0) & (idx <= n)
+
+
 def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
                   settings: OptimalTrackingSettings = OptimalTrackingSettings(),
                   ) -> SKTResult:
@@ -161,11 +171,8 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
     st = settings
     bw = model.p.body_weight
     t_w = np.asarray(obs.t_wrench, dtype=float)
-    n = t_w.size - 1
-    h = float(np.mean(np.diff(t_w)))
+    n, h, idx, keep = collocation_grid(obs)
     x0 = np.asarray(guess.x0, dtype=float)
-    idx = np.rint((obs.t_angles - t_w[0]) / h).astype(int)
-    keep = (idx >= 0) & (idx <= n)
     solver, basis = _build(model, n, h, idx[keep], st)
     kin0 = [_on_grid(guess.q, n).ravel(), _on_grid(guess.qd, n).ravel(),
             (_on_grid(guess.qdd, n) / _QDD_SCALE).ravel()]
