@@ -48,7 +48,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     from nmt_ros.io.bags import bag_info
     from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
     from nmt_ros.model.jumper import default_model
-    from nmt_ros.study.pipeline import NMTSettings, run_nmt
+    from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
     from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
 
     model = default_model()
@@ -81,7 +81,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     if figures:
         from nmt_ros.study.figures import plot_fig3, plot_fig4, plot_fig5
 
-        plot_fig3(truth, obs, run, out / 'fig3_skeletal_tracking.png')
+        plot_fig3(truth, obs, run, out / 'fig3_skeletal_tracking.png', STAGE1_LABELS[stage1])
         if run.stage2 is not None:
             plot_fig4(truth, run, out / 'fig4_muscles.png', model.p.muscles.f0)
             plot_fig5(truth, obs, run, model, out / 'fig5_nmt.png')

@@ -94,24 +94,27 @@ def _angles_panel(ax: plt.Axes, truth: Truth, obs: Observations,
     ax.legend(fontsize=7)
 
 
-def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) -> Path:
-    """Paper Fig. 3: joint torques, angles, ground forces and moment: actual/SKT/IVD/observed."""
+def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path,
+              stage1_label: str = 'SKT') -> Path:
+    """Paper Fig. 3: joint torques, angles, ground forces and moment: actual/Stage 1/IVD/
+    observed (``stage1_label``: the Stage-1 method's name in the legends)."""
     skt, ivd = run.skt, run.ivd
+    name = stage1_label
     fig, axes = plt.subplots(2, 2, figsize=(13, 8.5), constrained_layout=True)
     ax = axes[0, 0]
     for j, label in enumerate(JOINT_LABELS):
         line, = ax.plot(truth.t, truth.tau[:, j], lw=2.2, alpha=0.5, label=f'{label} actual')
-        ax.plot(skt.t, skt.tau[:, j], '-', lw=1, color=line.get_color(), label=f'{label} SKT')
+        ax.plot(skt.t, skt.tau[:, j], '-', lw=1, color=line.get_color(), label=f'{label} {name}')
         ax.plot(ivd.t, ivd.tau[:, j], '--', lw=1, color=line.get_color(), label=f'{label} IVD')
-    ax.set(title='(A) Joint torques: actual (thick), SKT (solid), IVD (dashed)',
+    ax.set(title='(A) Joint torques (thick: actual, dashed: IVD)',
            ylabel='torque (N m)')
     ax.legend(fontsize=7, ncol=3)
     _angles_panel(axes[0, 1], truth, obs, [(skt.t, skt.q, '-'), (ivd.sim_t, ivd.sim_q, '--')],
-                  '(B) Segment angles: actual, SKT, IVD simulation, raw (o)')
+                  '(B) Segment angles (thick: actual, thin: Stage 1, dashed: IVD sim.)')
     ax = axes[1, 0]
     for k, label in ((0, 'fore-aft'), (1, 'vertical')):
         line, = ax.plot(truth.t, truth.s[:, k], lw=2.2, alpha=0.5, label=f'{label} actual')
-        ax.plot(skt.t, skt.s[:, k], '-', lw=1, color=line.get_color(), label=f'{label} SKT')
+        ax.plot(skt.t, skt.s[:, k], '-', lw=1, color=line.get_color(), label=f'{label} {name}')
         ax.plot(ivd.sim_t, ivd.sim_s[:, k], '--', lw=1, color=line.get_color(),
                 label=f'{label} IVD sim')
         ax.plot(obs.t_wrench, obs.wrench[:, k], '.', ms=1.5, alpha=0.3, color=line.get_color())
@@ -119,7 +122,7 @@ def plot_fig3(truth: Truth, obs: Observations, run: object, path: str | Path) ->
     ax.legend(fontsize=7)
     ax = axes[1, 1]
     ax.plot(truth.t, truth.s[:, 2], 'k', lw=2.2, alpha=0.5, label='actual')
-    ax.plot(skt.t, skt.s[:, 2], 'C3', lw=1, label='SKT')
+    ax.plot(skt.t, skt.s[:, 2], 'C3', lw=1, label=name)
     ax.plot(obs.t_wrench, obs.wrench[:, 2], '.', ms=1.5, alpha=0.3, color='0.4',
             label='raw (biased)')
     ax.plot(run.cond.wrench.t, run.cond.wrench.filtered[:, 2], 'C0', lw=0.8,
@@ -155,7 +158,7 @@ def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
         line, = ax.plot(truth.t, truth.tau[:, j], lw=2.2, alpha=0.5, label=f'{label} actual')
         ax.plot(s2.t, s2.tau_muscle[:, j], '-', lw=1, color=line.get_color(),
                 label=f'{label} NMT')
-        ax.plot(skt.t, skt.tau[:, j], ':', lw=1, color=line.get_color(), label=f'{label} SKT')
+        ax.plot(skt.t, skt.tau[:, j], ':', lw=1, color=line.get_color(), label=f'{label} Stage 1')
     ax.set(title='(A) Joint torques', ylabel='torque (N m)')
     ax.legend(fontsize=7, ncol=3)
     _angles_panel(axes[1], truth, obs, [(sim.t, sim.x, '-')],

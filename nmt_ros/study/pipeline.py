@@ -32,6 +32,8 @@ from nmt_ros.tracking.skeletal_tracker import (
 )
 
 STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle')
+STAGE1_LABELS = {'skt': 'SKT', 'optimal': 'optimal tracking',
+                 'optimal_muscle': 'optimal tracking (muscles)'}
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from nmt_ros.model.parameters import JOINTS, MUSCLES, SEGMENTS
+from nmt_ros.study.pipeline import STAGE1_LABELS
 
 #: What Seth & Pandy (2007) report (METHOD.md section 5).
 PAPER = {'po_cpu_s': 24 * 3600.0, 'po_evaluations': 21000, 'po_jump_cm': 60.1,
@@ -19,7 +20,8 @@ def summary_lines(m: dict) -> list[str]:
     a = m['actual']
     lines = [f'actual jump: {a["jump_height_m"] * 100:.2f} cm, lift-off {a["liftoff_s"]:.4f} s']
     s = m['skt']
-    name = 'Stage 1 (optimal tracking)' if m.get('stage1_method') == 'optimal' else 'SKT'
+    name = STAGE1_LABELS[m.get('stage1_method', 'skt')]
+    name = name if name == 'SKT' else f'Stage 1 by {name}'
     lines.append(f'{name} ({s["status"]}, CPU {s["cpu_s"]:.2f} s): torque RMS % of peak '
                  f'{_fmt(s["torque_rms_pct_peak"], JOINTS)}; angles RMS deg '
                  f'{_fmt(s["angle_rms_deg"], SEGMENTS, "{:.2f}")} (filtered obs '
