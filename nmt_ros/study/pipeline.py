@@ -102,14 +102,24 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     say('Stage 1: skeletal motion tracker')
     skt = track(model, cond, settings.skt, settings.rate_hz)
     cpu['stage1'] = skt.cpu_s + cpu['conditioning']
-    if settings.stage1 in STAGE1_METHODS[1:] and skt.ok:
+    if settings.stage1 in STAGE1_METHODS[1:] and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 
         actuation = 'muscle' if settings.stage1 == 'optimal_muscle' else 'torque'
         say(f'Stage 1: optimal tracking of all observations, {actuation} actuation '
             '(from the tracker\'s result)')
-        skt = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation=actuation))
-        cpu['stage1'] += skt.cpu_s
+        # The tracker's result is only the initial guess: optimal tracking also runs after
+        # the tracker lost control (its partial result, the last sample held), and the
+        # tracker's result stands if optimal tracking fails. Both events are reported.
+        opt = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation=actuation))
+        cpu['stage1'] += opt.cpu_s
+        if opt.ok:
+            opt.events = [{**e, 'reason': f'skeletal tracker (initial guess): {e["reason"]}'}
+                          for e in skt.events] + opt.events
+            skt = opt
+        else:
+            say(f'optimal tracking failed ({opt.status}); Stage 1 is the tracker\'s result')
+            skt.events = skt.events + [{'t': 0.0, 'reason': f'optimal tracking: {opt.status}'}]
     elif settings.stage1 not in STAGE1_METHODS:
         raise ValueError(f'stage1 must be one of {STAGE1_METHODS}, not {settings.stage1!r}')
     if not skt.ok:
