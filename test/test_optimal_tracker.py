@@ -160,3 +160,13 @@ def test_failed_optimal_tracking_falls_back_to_the_tracker(model, obs, monkeypat
     run = run_nmt(model, obs, NMTSettings(stage1='optimal_muscle'))
     assert run.ok and run.skt.muscles is None
     assert any('optimal tracking: solver' in e['reason'] for e in run.skt.events)
+
+
+def test_a_record_too_long_is_refused_with_a_reason(model, obs):
+    """The NLP grows with the record: beyond ``max_intervals`` it is not built, and the
+    status says why (the fit window ends ``flight_s`` after the guess's lift-off)."""
+    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    res = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation='muscle',
+                                                                 max_intervals=100))
+    assert not res.ok and 'exceed max_intervals = 100' in res.status
+    assert res.events and res.events[0]['reason'] == res.status

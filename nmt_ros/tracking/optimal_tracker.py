@@ -31,7 +31,7 @@ length (bench/bench_stage1.py).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import time
 
 import casadi as ca
@@ -65,6 +65,11 @@ class OptimalTrackingSettings:
     excitation_rate_weight: float = 1e-4       # muscle actuation: sum (du/dt)^2 dt / T x s^2
     liftoff_force_bw: float = 0.02
     tol: float = 1e-6
+    # The fit ends this long after the guess's lift-off (None: the whole record; also when
+    # the guess has no lift-off). Flight adds little (the body is ballistic) but the NLP's
+    # size, build time and memory grow with the record (about 8 MB per force sample).
+    flight_s: float | None = 0.05
+    max_intervals: int = 1080     # longer fits are refused (muscle actuation: ~9 GB to build)
     max_iter: int = 500        # typical: 30-60 iterations (tested over 30 noise realisations)
 
 
@@ -148,6 +153,14 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
     return _SOLVERS[key]
 
 
+def fit_window(obs: Observations, t_end: float) -> Observations:
+    """The observations up to ``t_end`` [s] (both streams; the whole record if shorter)."""
+    w = np.asarray(obs.t_wrench) <= t_end + 1e-9
+    a = np.asarray(obs.t_angles) <= t_end + 1e-9
+    return replace(obs, t_wrench=obs.t_wrench[w], wrench=obs.wrench[w],
+                   t_angles=obs.t_angles[a], angles=obs.angles[a])
+
+
 def collocation_grid(obs: Observations) -> tuple[int, float, np.ndarray, np.ndarray]:
     """(n intervals, h [s], grid index of each angle sample, mask of those on the grid):
     one interval per force-plate sample."""
@@ -170,8 +183,15 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
     c0 = time.process_time()
     st = settings
     bw = model.p.body_weight
+    if st.flight_s is not None and np.isfinite(guess.liftoff_s):
+        obs = fit_window(obs, float(guess.liftoff_s) + st.flight_s)
     t_w = np.asarray(obs.t_wrench, dtype=float)
     n, h, idx, keep = collocation_grid(obs)
+    if n > st.max_intervals:
+        reason = (f'{n} force samples ({n * h:.2f} s) exceed max_intervals '
+                  f'= {st.max_intervals}; trim the record to the movement')
+        return replace(guess, status=reason, events=[{'t': 0.0, 'reason': reason}],
+                       cpu_s=time.process_time() - c0)
     x0 = np.asarray(guess.x0, dtype=float)
     solver, basis = _build(model, n, h, idx[keep], st)
     kin0 = [_on_grid(guess.q, n).ravel(), _on_grid(guess.qd, n).ravel(),
