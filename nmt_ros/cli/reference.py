@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from nmt_ros.model.jumper import default_model
     from nmt_ros.study.figures import plot_reference_jump
     from nmt_ros.study.observations import ObservationSettings, make_observations
-    from nmt_ros.study.opensim_truth import write_opensim_truth
+    from nmt_ros.study.opensim_results import write_opensim_truth
     from nmt_ros.study.reference import POSettings, make_reference
     from nmt_ros.study.trial import truth_from_simulation
 

@@ -5,8 +5,9 @@ model's muscles (``--stage1 optimal``: free joint torques; ``--stage1 skt``: the
 skeletal motion tracker, whose result is also the others' initial guess); ``metrics.json`` says
 which (``stage1_method``; its ``skt`` block holds the Stage-1 results either way).
 
-Writes ``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time) and,
-when the bag carries ``/truth/*``, ``DIR/metrics.json`` and the paper-style figures.
+Writes ``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time),
+``DIR/opensim/`` (the estimates as OpenSim files, ``nmt_ros.study.opensim_results``) and, when
+the bag carries ``/truth/*``, ``DIR/metrics.json`` and the paper-style figures.
 """
 from __future__ import annotations
 
@@ -61,6 +62,10 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     out.mkdir(parents=True, exist_ok=True)
     write_estimates_bag(out / 'estimates', model, run, obs.info['epoch_ns'])
     say(f'estimates: {out / "estimates"}')
+    from nmt_ros.study.opensim_results import write_opensim_estimates
+
+    write_opensim_estimates(out / 'opensim', model, run)
+    say(f'OpenSim files: {out / "opensim"} (model: nmt export-osim)')
     if not has_truth(bag):
         return None
     from nmt_ros.study.metrics import compute_metrics

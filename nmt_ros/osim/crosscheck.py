@@ -6,6 +6,7 @@ Run as subprocesses (OpenSim cannot share a process with casadi)::
     python -m nmt_ros.osim.crosscheck id --coordinates Q.sto --external-loads EL.xml \\
         [--grf GRF.mot] --out-sto OUT.sto [--out-npz OUT.npz] [--model M.osim] [--lowpass HZ]
     python -m nmt_ros.osim.crosscheck write-inputs --in IN.npz --dir DIR
+    python -m nmt_ros.osim.crosscheck states-forces --states S.sto --out OUT.npz [--model M]
 
 Without ``--model`` the model is built from the data file (``nmt_ros.osim.export``).
 
@@ -30,6 +31,9 @@ ExpressionBasedCoordinateForces stay, and coordinate filtering is off
 generalized forces (``foot_tilt_moment``, ``foot_tx_force``, ``foot_ty_force``,
 ``ankle_angle_moment``, ``knee_angle_moment``, ``hip_flexion_moment``) go to a .sto and,
 optionally, an npz with ``time``, ``labels`` and ``values``.
+
+``states-forces``: OpenSim reads a states file (``nmt_ros.study.opensim_results``) into a
+StatesTrajectory and OUT.npz gets ``time`` and the muscles' ``tendon_force`` [n, 9].
 
 ``write-inputs``: test inputs written with OpenSim's own API (TimeSeriesTable and
 STOFileAdapter). IN.npz holds ``t`` [n], ``q`` [n, 6] (ours, converted as above) and
@@ -128,6 +132,24 @@ def muscle_quantities(model: osim.Model, q: np.ndarray, qd: np.ndarray,
     out['muscles'] = np.array(MUSCLES)
     out['coordinates'] = np.array(JOINT_COORDINATES)
     return out
+
+
+def states_file_forces(model: osim.Model, states_file: str | Path) -> dict[str, np.ndarray]:
+    """Tendon forces [n, 9] (data-file order) along a states .sto, read by OpenSim itself
+    (``StatesTrajectory.createFromStatesTable``: coordinate values and speeds, activations)."""
+    model.initSystem()
+    table = osim.TimeSeriesTable(str(states_file))
+    traj = osim.StatesTrajectory.createFromStatesTable(model, table, True, False, False)
+    muscles = [model.getMuscles().get(m) for m in MUSCLES]
+    n = traj.getSize()
+    time = np.empty(n)
+    force = np.empty((n, len(MUSCLES)))
+    for i in range(n):
+        state = traj.get(i)
+        model.realizeDynamics(state)
+        time[i] = state.getTime()
+        force[i] = [m.getTendonForce(state) for m in muscles]
+    return {'time': time, 'tendon_force': force, 'muscles': np.array(MUSCLES)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -256,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--in', dest='inp', required=True, type=Path)
     p.add_argument('--out', required=True, type=Path)
     p.add_argument('--model', type=Path, default=None)
+    p = sub.add_parser('states-forces', help='muscle tendon forces along a states .sto')
+    p.add_argument('--states', required=True, type=Path)
+    p.add_argument('--out', required=True, type=Path)
+    p.add_argument('--model', type=Path, default=None)
     p = sub.add_parser('id', help="OpenSim's InverseDynamicsTool")
     p.add_argument('--coordinates', required=True, type=Path)
     p.add_argument('--external-loads', type=Path, default=None)
@@ -276,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
         d = np.load(args.inp)
         out = muscle_quantities(load_model(args.model), d['q'], d['qd'], d['a'])
         np.savez(args.out, **out)
+    elif args.verb == 'states-forces':
+        np.savez(args.out, **states_file_forces(load_model(args.model), args.states))
     elif args.verb == 'id':
         time, labels, values = inverse_dynamics(load_model(args.model), args.coordinates,
                                                 args.external_loads, args.out_sto, args.grf,
