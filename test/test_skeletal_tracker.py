@@ -141,3 +141,18 @@ def test_optimal_tracking_is_consistent_and_beats_the_tracker(model, truth, obs)
     f_skt = contact_rms(skt.t, skt.s[:, :2], truth, truth.s[:, :2])
     assert (f_opt < f_skt).all()
     assert abs(opt.liftoff_s - truth.liftoff_s) < 0.002
+
+
+def test_conditioning_names_bad_input(obs):
+    """Batch input with a NaN or a gap is refused with an error naming the problem."""
+    import pytest
+
+    w = obs.wrench.copy()
+    w[100, 1] = np.nan
+    with pytest.raises(ValueError, match=r'wrench observations must be finite: NaN or inf at '
+                                         r'sample 100 \(t = 0\.0926 s\), column 1'):
+        condition(obs.t_angles, obs.angles, obs.t_wrench, w)
+    keep = np.ones(obs.t_wrench.size, bool)
+    keep[120:125] = False
+    with pytest.raises(ValueError, match='uniformly spaced'):
+        condition(obs.t_angles, obs.angles, obs.t_wrench[keep], obs.wrench[keep])

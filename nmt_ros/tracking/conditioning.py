@@ -112,6 +112,13 @@ def condition(t_angles: np.ndarray, angles: np.ndarray, t_wrench: np.ndarray,
               wrench: np.ndarray, settings: ConditioningSettings = ConditioningSettings(),
               ) -> ConditionedObservations:
     """Offline (zero-lag, whole record) conditioning of both streams."""
+    for name, t, x in (('angle', t_angles, angles), ('wrench', t_wrench, wrench)):
+        bad = np.argwhere(~np.isfinite(np.asarray(x, dtype=float)))
+        if bad.size or not np.isfinite(np.asarray(t, dtype=float)).all():
+            where = (f'sample {bad[0][0]} (t = {t[bad[0][0]]:.4f} s), column {bad[0][1]}'
+                     if bad.size else 'in the time stamps')
+            raise ValueError(f'{name} observations must be finite: NaN or inf at {where} '
+                             f'({len(bad)} values); drop or fill them first')
     return ConditionedObservations(
         angles=SmoothSignal(t_angles, angles, _rate(t_angles), settings.angle_cutoff_hz,
                             settings.order),
