@@ -26,7 +26,7 @@ tracking problem posed on the raw observations. The prior it adds is the muscles
 torques that no activation pattern can make (the saturated end of a maximal push-off), and
 torque shapes that activation dynamics cannot follow, are excluded, so the estimate is both
 closer to the actual and one that Stage 2 can track. The initial guess of a and u is Stage 2
-on the skeletal tracker's torques. About 5 s of CPU after a one-off 17 s build per trial
+on the skeletal tracker's torques. About 3.5 s of CPU after a one-off 10 s build per trial
 length (bench/bench_stage1.py).
 """
 from __future__ import annotations
@@ -67,9 +67,9 @@ class OptimalTrackingSettings:
     tol: float = 1e-6
     # The fit ends this long after the guess's lift-off (None: the whole record; also when
     # the guess has no lift-off). Flight adds little (the body is ballistic) but the NLP's
-    # size, build time and memory grow with the record (about 8 MB per force sample).
+    # size, build time and memory grow with the record (muscles: 3.6 MB, 40 ms per sample).
     flight_s: float | None = 0.05
-    max_intervals: int = 1080     # longer fits are refused (muscle actuation: ~9 GB to build)
+    max_intervals: int = 1080     # longer fits are refused (muscle actuation: ~4 GB to build)
     max_iter: int = 500        # typical: 30-60 iterations (tested over 30 noise realisations)
 
 
@@ -108,7 +108,8 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
         tau_m, _ = model.muscle_torques(x[:6], x[6:], aa)
         node = ca.Function('ocp_node', [x, acc, aa, uu, xa], [
             scale * model.dynamics_residual(x[:6], x[6:], acc, tau_m, xa),
-            model.contact_outputs(x[:6], x[6:], xa), model.activation_dynamics(uu, aa)])
+            model.contact_outputs(x[:6], x[6:], xa), model.activation_dynamics(uu, aa)],
+            {'cse': True})   # common subexpressions: half the instructions, build and solve
         residual, s_model, adot = node.map(n + 1, 'serial')(
             ca.vertcat(q, qd), qdd, act, exc, ca.repmat(x0, 1, n + 1))
         extra = [ca.vec(act[:, 1:] - act[:, :-1] - h / 2 * (adot[:, 1:] + adot[:, :-1]))]
@@ -117,7 +118,7 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
         uu = ca.SX.sym('u', 3)
         node = ca.Function('ocp_node', [x, acc, uu, xa], [
             scale * model.dynamics_residual(x[:6], x[6:], acc, uu, xa),
-            model.contact_outputs(x[:6], x[6:], xa)])
+            model.contact_outputs(x[:6], x[6:], xa)], {'cse': True})
         residual, s_model = node.map(n + 1, 'serial')(ca.vertcat(q, qd), qdd,
                                                      _TAU_SCALE * tau_v, ca.repmat(x0, 1, n + 1))
         extra = []
