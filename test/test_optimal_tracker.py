@@ -170,3 +170,32 @@ def test_a_record_too_long_is_refused_with_a_reason(model, obs):
                                                                  max_intervals=100))
     assert not res.ok and 'exceed max_intervals = 100' in res.status
     assert res.events and res.events[0]['reason'] == res.status
+
+
+@pytest.mark.parametrize('actuation', ['muscle', 'torque'])
+def test_assembled_hessian_equals_the_nlps_own(model, actuation):
+    """The Lagrangian Hessian assembled from one node's (what IPOPT gets) equals CasADi's
+    differentiation of the whole NLP, at a random point with random multipliers."""
+    import casadi as ca
+
+    from nmt_ros.tracking.optimal_tracker import _build
+
+    n = 12
+    idx = np.array([0, 4, 8, 12])
+    solver, _ = _build(model, n, 1 / 1080, idx, OptimalTrackingSettings(actuation=actuation))
+    nlp = solver.oracle()
+    x, p = ca.MX.sym('x', nlp.size1_in(0)), ca.MX.sym('p', nlp.size1_in(1))
+    lam_f, lam_g = ca.MX.sym('lam_f'), ca.MX.sym('lam_g', nlp.size1_out(1))
+    f, g = nlp(x, p)
+    reference = ca.Function('h', [x, p, lam_f, lam_g],
+                            [ca.triu(ca.hessian(lam_f * f + ca.dot(lam_g, g), x)[0])])
+    rng = np.random.default_rng(4)
+    xv = 0.1 * rng.normal(size=x.numel())
+    xv[:6 * (n + 1)] += np.tile([0.0, -0.4, 0.8, -0.6, 0.0, 0.0], n + 1)   # a squat
+    pv = rng.normal(size=p.numel())
+    pv[-2:] = [-0.03, 0.14]
+    args = [xv, pv, 0.7, rng.normal(size=lam_g.numel())]
+    ours = solver.get_function('nlp_hess_l')(*args)
+    ref = reference(*args)
+    scale = float(np.abs(np.asarray(ref)).max())
+    assert float(np.abs(np.asarray(ours - ref)).max()) < 1e-10 * scale

@@ -26,8 +26,9 @@ tracking problem posed on the raw observations. The prior it adds is the muscles
 torques that no activation pattern can make (the saturated end of a maximal push-off), and
 torque shapes that activation dynamics cannot follow, are excluded, so the estimate is both
 closer to the actual and one that Stage 2 can track. The initial guess of a and u is Stage 2
-on the skeletal tracker's torques. About 3.5 s of CPU after a one-off 10 s build per trial
-length (bench/bench_stage1.py).
+on the skeletal tracker's torques. About 5.4 s of CPU for the 0.25 s jump, of which 0.2 s builds
+the NLP (its Lagrangian Hessian is assembled from one node's: ``_lagrangian_hessian``);
+0.2 GB of memory (bench/bench_stage1.py).
 """
 from __future__ import annotations
 
@@ -67,9 +68,9 @@ class OptimalTrackingSettings:
     tol: float = 1e-6
     # The fit ends this long after the guess's lift-off (None: the whole record; also when
     # the guess has no lift-off). Flight adds little (the body is ballistic) but the NLP's
-    # size, build time and memory grow with the record (muscles: 3.6 MB, 40 ms per sample).
+    # size and solve time grow with the record (muscles: about 20 ms of CPU per sample).
     flight_s: float | None = 0.05
-    max_intervals: int = 1080     # longer fits are refused (muscle actuation: ~4 GB to build)
+    max_intervals: int = 1080     # longer fits are refused (bounds the solve: ~25 s at 1 s)
     max_iter: int = 500        # typical: 30-60 iterations (tested over 30 noise realisations)
 
 
@@ -131,27 +132,118 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
                              for k in range(st.moment_bias_terms)])
     sig_s = np.array([st.force_sd_bw * bw] * 2 + [st.force_sd_bw * bw * st.moment_lever_m])
     s_fit = s_model.T + ca.horzcat(ca.DM.zeros(n + 1, 2), ca.DM(basis) @ cb)
-    cost = ca.sumsqr((s_fit - w) / ca.repmat(ca.DM(sig_s).T, n + 1, 1))
+    cost_fit = ca.sumsqr((s_fit - w) / ca.repmat(ca.DM(sig_s).T, n + 1, 1))
     sig_a = np.radians(st.angle_sd_deg) * st.angle_bias_allowance
-    cost += ca.sumsqr((q[0:4, list(idx)].T - ang) / ca.repmat(ca.DM(sig_a).T, n_a, 1))
+    cost_quad = ca.sumsqr((q[0:4, list(idx)].T - ang) / ca.repmat(ca.DM(sig_a).T, n_a, 1))
     if muscle:
         t_total = n * h
-        cost += st.excitation_weight * h / t_total * ca.sumsqr(exc)
-        cost += st.excitation_rate_weight / (h * t_total) * ca.sumsqr(exc[:, 1:] - exc[:, :-1])
-        z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), ca.vec(act), ca.vec(exc), cb)
+        cost_quad += st.excitation_weight * h / t_total * ca.sumsqr(exc)
+        cost_quad += (st.excitation_rate_weight / (h * t_total)
+                      * ca.sumsqr(exc[:, 1:] - exc[:, :-1]))
+        drive = [act, exc]
     else:
-        cost += st.torque_rate_weight * n * ca.sumsqr(tau_v[:, 1:] - tau_v[:, :-1]) / h
-        z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), ca.vec(tau_v), cb)
+        cost_quad += st.torque_rate_weight * n * ca.sumsqr(tau_v[:, 1:] - tau_v[:, :-1]) / h
+        drive = [tau_v]
+    z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), *[ca.vec(d) for d in drive], cb)
     p = ca.vertcat(ca.vec(w), ca.vec(ang), x0)
+    hess = _lagrangian_hessian(node, muscle, n, h, z, p, cost_quad, sig_s, basis,
+                               [6, 6, 6] + [d.shape[0] for d in drive])
     solver = ca.nlpsol('stage1_tracking', 'ipopt',
-                       {'x': z, 'p': p, 'f': cost, 'g': constraints},
-                       {'expand': True, 'print_time': False, 'show_eval_warnings': False,
+                       {'x': z, 'p': p, 'f': cost_fit + cost_quad, 'g': constraints},
+                       {'expand': False, 'hess_lag': hess,
+                        'print_time': False, 'show_eval_warnings': False,
                         'ipopt': {'print_level': 0, 'tol': st.tol, 'max_iter': st.max_iter,
                                   'linear_solver': 'mumps', 'sb': 'yes',
                                   # the guess is close: a small barrier keeps IPOPT near it
                                   'mu_init': 1e-3}})
     _SOLVERS[key] = (solver, basis)
     return _SOLVERS[key]
+
+
+def _lagrangian_hessian(node: ca.Function, muscle: bool, n: int, h: float, z: ca.MX,
+                        p: ca.MX, cost_quad: ca.MX, sig_s: np.ndarray, basis: np.ndarray,
+                        rows: list[int]) -> ca.Function:
+    """IPOPT's Hessian of the Lagrangian (upper triangle), assembled from one node's.
+
+    The NLP is separable: every nonlinear term (the dynamics residual, the model's wrench in
+    the fit, the activation rates of the trapezoidal rule) involves one node's variables and
+    the moment-bias coefficients; the rest of the cost is quadratic (a constant Hessian). So
+    the Hessian of one node's Lagrangian is built once (SX, common subexpressions removed),
+    mapped over the nodes, and summed into place by a constant sparse matrix: the same
+    values as differentiating the whole NLP (tested), without building it node by node
+    (muscle actuation: 10 s and 1.1 GB less per trial length).
+
+    ``rows``: the variable blocks of ``z`` before the bias coefficients, each [rows x n + 1]
+    stored node by node (q, qd, qdd, then the drive: torques, or activations and excitations).
+    """
+    big_n = n + 1
+    nb = basis.shape[1]
+    ny = int(sum(rows))
+    nz = z.numel()
+    # One node's Lagrangian: sigma * (wrench fit) + lambda_res' residual - h/2 mu' adot.
+    y = ca.SX.sym('y', ny)
+    cbs = ca.SX.sym('cb', nb)
+    wk = ca.SX.sym('w', 3)
+    bk = ca.SX.sym('b', nb)
+    x0s = ca.SX.sym('x0', 2)
+    sigma = ca.SX.sym('sigma')
+    lres = ca.SX.sym('lres', 6)
+    qk, qdk, qddk = y[0:6], y[6:12], _QDD_SCALE * y[12:18]
+    if muscle:
+        nm = rows[3]
+        mu = ca.SX.sym('mu', nm)
+        res, s, adot = node(ca.vertcat(qk, qdk), qddk, y[18:18 + nm], y[18 + nm:], x0s)
+        extra_l = -h / 2 * ca.dot(mu, adot)
+        extra_in = [mu]
+    else:
+        res, s = node(ca.vertcat(qk, qdk), qddk, _TAU_SCALE * y[18:21], x0s)
+        extra_l, extra_in = 0, []
+    fit = (s + ca.vertcat(0, 0, ca.dot(bk, cbs)) - wk) / ca.DM(sig_s)
+    lag = sigma * ca.sumsqr(fit) + ca.dot(lres, res) + extra_l
+    hk, _ = ca.hessian(lag, ca.vertcat(y, cbs))
+    r_loc, c_loc = (np.asarray(v) for v in hk.sparsity().get_triplet())
+    hk_fn = ca.Function('node_hessian', [y, cbs, wk, bk, x0s, sigma, lres, *extra_in],
+                        [ca.vertcat(*hk.nonzeros())], {'cse': True})
+    # The constant Hessian of the quadratic part of the cost.
+    zs, ps = ca.SX.sym('z', nz), ca.SX.sym('p', p.numel())
+    quad = ca.Function('quad', [z, p], [cost_quad]).expand()
+    hc = ca.hessian(quad(zs, ps), zs)[0]
+    hc = ca.evalf(ca.substitute(hc, ca.vertcat(zs, ps), ca.DM.zeros(nz + p.numel())))
+    r_c, c_c = (np.asarray(v) for v in hc.sparsity().get_triplet())
+    # Global index of node k's local variables (the blocks, then the bias coefficients).
+    offsets = np.cumsum([0] + [r * big_n for r in rows])[:-1]
+    local = np.concatenate([off + r * np.arange(big_n)[:, None] + np.arange(r)[None, :]
+                            for off, r in zip(offsets, rows)], axis=1)       # [N, ny]
+    local = np.hstack([local, np.repeat(nz - nb + np.arange(nb)[None, :], big_n, 0)])
+    rr = np.concatenate([local[:, r_loc].ravel(), r_c])
+    cc = np.concatenate([local[:, c_loc].ravel(), c_c])
+    upper = rr <= cc
+    cols = np.flatnonzero(upper)
+    keys = cc[upper] * nz + rr[upper]
+    uniq = np.unique(keys)
+    sp = ca.Sparsity.triplet(nz, nz, (uniq % nz).tolist(), (uniq // nz).tolist())
+    n_in = r_loc.size * big_n + r_c.size
+    gather = ca.DM(ca.Sparsity.triplet(uniq.size, n_in, np.searchsorted(uniq, keys).tolist(),
+                                       cols.tolist()), 1.0)
+    # The Hessian function of IPOPT's interface: (x, p, lam_f, lam_g) -> triu(H).
+    xz, xp, lf = ca.MX.sym('x', nz), ca.MX.sym('p', p.numel()), ca.MX.sym('lam_f')
+    n_g = 12 * n + 6 * big_n + 12 + (rows[3] * n if muscle else 0)
+    lg = ca.MX.sym('lam_g', n_g)
+    blocks = ca.vertsplit(xz, list(offsets) + [nz - nb, nz])
+    y_all = ca.vertcat(*[ca.reshape(b, r, big_n) for b, r in zip(blocks[:-1], rows)])
+    w_all = ca.reshape(xp[:3 * big_n], big_n, 3).T
+    x0_all = ca.repmat(xp[-2:], 1, big_n)
+    lres_all = ca.reshape(lg[12 * n:12 * n + 6 * big_n], 6, big_n)
+    args = [y_all, ca.repmat(blocks[-1], 1, big_n), w_all, ca.DM(basis.T), x0_all,
+            ca.repmat(lf, 1, big_n), lres_all]
+    if muscle:
+        lam_a = ca.reshape(lg[12 * n + 6 * big_n + 12:], rows[3], n)
+        zero = ca.MX.zeros(rows[3], 1)
+        args.append(ca.horzcat(zero, lam_a) + ca.horzcat(lam_a, zero))
+    nodes = hk_fn.map(big_n, 'serial')(*args)
+    values = ca.mtimes(gather, ca.vertcat(ca.vec(nodes), lf * ca.DM(hc.nonzeros())))
+    return ca.Function('nlp_hess_l', [xz, xp, lf, lg], [ca.MX(sp, values)],
+                       ['x', 'p', 'lam_f', 'lam_g'], ['hess_gamma_x_x'])
 
 
 def fit_window(obs: Observations, t_end: float) -> Observations:
