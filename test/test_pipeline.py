@@ -85,6 +85,8 @@ def test_track_works_on_a_bag_without_truth(tmp_path):
     proc = nmt('track', str(lab), '--out', str(out), '--no-figures')
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (out / 'estimates' / 'metadata.yaml').exists()
+    assert (out / 'opensim' / 'stage2_states.sto').is_file()
+    assert (out / 'opensim' / 'stage1_grf.xml').is_file()
     assert not (out / 'metrics.json').exists()
 
 
