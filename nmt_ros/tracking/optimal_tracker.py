@@ -123,6 +123,7 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
         residual, s_model = node.map(n + 1, 'serial')(ca.vertcat(q, qd), qdd,
                                                      _TAU_SCALE * tau_v, ca.repmat(x0, 1, n + 1))
         extra = []
+    # (Order and layout relied on by _lagrangian_hessian; its test compares with CasADi's.)
     constraints = ca.vertcat(
         ca.vec(q[:, 1:] - q[:, :-1] - h / 2 * (qd[:, 1:] + qd[:, :-1])),   # trapezoidal
         ca.vec(qd[:, 1:] - qd[:, :-1] - h / 2 * (qdd[:, 1:] + qdd[:, :-1])),
@@ -148,6 +149,8 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
     p = ca.vertcat(ca.vec(w), ca.vec(ang), x0)
     hess = _lagrangian_hessian(node, muscle, n, h, z, p, cost_quad, sig_s, basis,
                                [6, 6, 6] + [d.shape[0] for d in drive])
+    if hess.size1_in(3) != constraints.numel():
+        raise AssertionError('the Hessian assembly does not match the constraints')
     solver = ca.nlpsol('stage1_tracking', 'ipopt',
                        {'x': z, 'p': p, 'f': cost_fit + cost_quad, 'g': constraints},
                        {'expand': False, 'hess_lag': hess,
