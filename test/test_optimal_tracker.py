@@ -161,6 +161,14 @@ def test_failed_optimal_tracking_falls_back_to_the_tracker(model, obs, monkeypat
     assert run.ok and run.skt.muscles is None
     assert any('optimal tracking: solver' in e['reason'] for e in run.skt.events)
 
+    def raising(model, obs, guess, settings):
+        raise RuntimeError('Error in Function::call for solver')
+
+    monkeypatch.setattr(optimal_tracker, 'track_optimal', raising)
+    run = run_nmt(model, obs, NMTSettings(stage1='optimal_muscle'))
+    assert run.ok and run.skt.muscles is None
+    assert any('optimal tracking: error: RuntimeError' in e['reason'] for e in run.skt.events)
+
 
 def test_a_record_too_long_is_refused_with_a_reason(model, obs):
     """The NLP grows with the record: beyond ``max_intervals`` it is not built, and the

@@ -7,7 +7,7 @@ and observations -> IVD torques -> open-loop forward simulation (the baseline).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import time
 
 import numpy as np
@@ -111,8 +111,12 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         # The tracker's result is only the initial guess: optimal tracking also runs after
         # the tracker lost control (its partial result, the last sample held), and the
         # tracker's result stands if optimal tracking fails. Both events are reported.
-        opt = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation=actuation))
-        cpu['stage1'] += opt.cpu_s
+        c = time.process_time()
+        try:
+            opt = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation=actuation))
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as err:   # CasADi, guess
+            opt = replace(skt, status=f'error: {type(err).__name__}: {err}'[:300])
+        cpu['stage1'] += time.process_time() - c
         if opt.ok:
             opt.events = [{**e, 'reason': f'skeletal tracker (initial guess): {e["reason"]}'}
                           for e in skt.events] + opt.events
