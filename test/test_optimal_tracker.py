@@ -207,3 +207,30 @@ def test_assembled_hessian_equals_the_nlps_own(model, actuation):
     ref = reference(*args)
     scale = float(np.abs(np.asarray(ref)).max())
     assert float(np.abs(np.asarray(ours - ref)).max()) < 1e-10 * scale
+
+
+@pytest.mark.parametrize('actuation', ['muscle', 'torque'])
+def test_assembled_jacobian_equals_the_nlps_own(model, actuation):
+    """The constraint Jacobian assembled from one node's (what IPOPT gets) equals CasADi's
+    differentiation of the whole NLP, and so do the constraint values, at a random point."""
+    import casadi as ca
+
+    from nmt_ros.tracking.optimal_tracker import _build
+
+    n = 12
+    solver, _ = _build(model, n, 1 / 1080, np.array([0, 4, 8, 12]),
+                       OptimalTrackingSettings(actuation=actuation))
+    nlp = solver.oracle()
+    x, p = ca.MX.sym('x', nlp.size1_in(0)), ca.MX.sym('p', nlp.size1_in(1))
+    _, g = nlp(x, p)
+    reference = ca.Function('j', [x, p], [g, ca.jacobian(g, x)])
+    rng = np.random.default_rng(5)
+    xv = 0.1 * rng.normal(size=x.numel())
+    xv[:6 * (n + 1)] += np.tile([0.0, -0.4, 0.8, -0.6, 0.0, 0.0], n + 1)
+    pv = rng.normal(size=p.numel())
+    pv[-2:] = [-0.03, 0.14]
+    g_ours, j_ours = solver.get_function('nlp_jac_g')(xv, pv)
+    g_ref, j_ref = reference(xv, pv)
+    assert float(np.abs(np.asarray(g_ours - g_ref)).max()) == 0.0
+    scale = float(np.abs(np.asarray(j_ref)).max())
+    assert float(np.abs(np.asarray(j_ours - j_ref)).max()) < 1e-12 * scale

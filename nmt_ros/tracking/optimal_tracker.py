@@ -27,7 +27,8 @@ torques that no activation pattern can make (the saturated end of a maximal push
 torque shapes that activation dynamics cannot follow, are excluded, so the estimate is both
 closer to the actual and one that Stage 2 can track. The initial guess of a and u is Stage 2
 on the skeletal tracker's torques. About 5.4 s of CPU for the 0.25 s jump, of which 0.2 s builds
-the NLP (its Lagrangian Hessian is assembled from one node's: ``_lagrangian_hessian``);
+the NLP (its Lagrangian Hessian and constraint Jacobian are assembled from one node's:
+``_lagrangian_hessian``, ``_constraint_jacobian``);
 0.2 GB of memory (bench/bench_stage1.py).
 """
 from __future__ import annotations
@@ -113,7 +114,6 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
             {'cse': True})   # common subexpressions: half the instructions, build and solve
         residual, s_model, adot = node.map(n + 1, 'serial')(
             ca.vertcat(q, qd), qdd, act, exc, ca.repmat(x0, 1, n + 1))
-        extra = [ca.vec(act[:, 1:] - act[:, :-1] - h / 2 * (adot[:, 1:] + adot[:, :-1]))]
     else:
         tau_v = ca.MX.sym('tau', 3, n + 1)
         uu = ca.SX.sym('u', 3)
@@ -122,12 +122,21 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
             model.contact_outputs(x[:6], x[6:], xa)], {'cse': True})
         residual, s_model = node.map(n + 1, 'serial')(ca.vertcat(q, qd), qdd,
                                                      _TAU_SCALE * tau_v, ca.repmat(x0, 1, n + 1))
-        extra = []
-    # (Order and layout relied on by _lagrangian_hessian; its test compares with CasADi's.)
-    constraints = ca.vertcat(
-        ca.vec(q[:, 1:] - q[:, :-1] - h / 2 * (qd[:, 1:] + qd[:, :-1])),   # trapezoidal
-        ca.vec(qd[:, 1:] - qd[:, :-1] - h / 2 * (qdd[:, 1:] + qdd[:, :-1])),
-        ca.vec(residual), qd[:, 0], qdd_v[:, 0], *extra)                     # Eq. 1; at rest
+        adot = None
+
+    def assemble(residual: ca.MX, adot: ca.MX | None) -> ca.MX:
+        # (Order and layout relied on by _lagrangian_hessian and _constraint_jacobian; their
+        # tests compare with CasADi's derivatives of the whole NLP.)
+        extra = [] if adot is None else [
+            ca.vec(act[:, 1:] - act[:, :-1] - h / 2 * (adot[:, 1:] + adot[:, :-1]))]
+        return ca.vertcat(
+            ca.vec(q[:, 1:] - q[:, :-1] - h / 2 * (qd[:, 1:] + qd[:, :-1])),   # trapezoidal
+            ca.vec(qd[:, 1:] - qd[:, :-1] - h / 2 * (qdd[:, 1:] + qdd[:, :-1])),
+            ca.vec(residual), qd[:, 0], qdd_v[:, 0], *extra)                 # Eq. 1; at rest
+
+    constraints = assemble(residual, adot)
+    linear_part = assemble(ca.MX.zeros(residual.shape),
+                           None if adot is None else ca.MX.zeros(adot.shape))
     t_grid = np.arange(n + 1) * h
     basis = np.column_stack([(t_grid / t_grid[-1]) ** (k + 1)
                              for k in range(st.moment_bias_terms)])
@@ -147,13 +156,14 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
         drive = [tau_v]
     z = ca.vertcat(ca.vec(q), ca.vec(qd), ca.vec(qdd_v), *[ca.vec(d) for d in drive], cb)
     p = ca.vertcat(ca.vec(w), ca.vec(ang), x0)
-    hess = _lagrangian_hessian(node, muscle, n, h, z, p, cost_quad, sig_s, basis,
-                               [6, 6, 6] + [d.shape[0] for d in drive])
+    rows = [6, 6, 6] + [d.shape[0] for d in drive]
+    hess = _lagrangian_hessian(node, muscle, n, h, z, p, cost_quad, sig_s, basis, rows)
+    jac = _constraint_jacobian(node, muscle, n, h, z, p, constraints, linear_part, rows)
     if hess.size1_in(3) != constraints.numel():
         raise AssertionError('the Hessian assembly does not match the constraints')
     solver = ca.nlpsol('stage1_tracking', 'ipopt',
                        {'x': z, 'p': p, 'f': cost_fit + cost_quad, 'g': constraints},
-                       {'expand': False, 'hess_lag': hess,
+                       {'expand': False, 'hess_lag': hess, 'jac_g': jac,
                         'print_time': False, 'show_eval_warnings': False,
                         'ipopt': {'print_level': 0, 'tol': st.tol, 'max_iter': st.max_iter,
                                   'linear_solver': 'mumps', 'sb': 'yes',
@@ -161,6 +171,98 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
                                   'mu_init': 1e-3}})
     _SOLVERS[key] = (solver, basis)
     return _SOLVERS[key]
+
+
+def _node_index(rows: list[int], n: int, nz: int, nb: int) -> np.ndarray:
+    """[n + 1, sum(rows) + nb]: the global index in z of each node's local variables (the
+    blocks of ``rows``, each stored node by node, then the nb bias coefficients)."""
+    big_n = n + 1
+    offsets = np.cumsum([0] + [r * big_n for r in rows])[:-1]
+    local = np.concatenate([off + r * np.arange(big_n)[:, None] + np.arange(r)[None, :]
+                            for off, r in zip(offsets, rows)], axis=1)
+    return np.hstack([local, np.repeat(nz - nb + np.arange(nb)[None, :], big_n, 0)])
+
+
+def _node_variables(xz: ca.MX, rows: list[int], n: int, nb: int) -> tuple[ca.MX, ca.MX]:
+    """(the nodes' local variables [sum(rows), n + 1], the bias coefficients [nb]) of z."""
+    big_n = n + 1
+    cuts = list(np.cumsum([0] + [r * big_n for r in rows])) + [xz.numel()]
+    blocks = ca.vertsplit(xz, cuts)
+    return (ca.vertcat(*[ca.reshape(b, r, big_n) for b, r in zip(blocks[:-1], rows)]),
+            blocks[-1])
+
+
+def _gather(rows_out: np.ndarray, cols_out: np.ndarray, source: np.ndarray,
+            coef: np.ndarray, shape: tuple[int, int], n_in: int) -> tuple[ca.Sparsity, ca.DM]:
+    """Sparsity of the sum of entries (rows_out, cols_out) and the constant matrix that
+    sums source values (with coefficients) into its nonzeros (column-major order)."""
+    keys = cols_out * shape[0] + rows_out
+    uniq = np.unique(keys)
+    sp = ca.Sparsity.triplet(shape[0], shape[1], (uniq % shape[0]).tolist(),
+                             (uniq // shape[0]).tolist())
+    gather = ca.DM.triplet(np.searchsorted(uniq, keys).tolist(), source.tolist(),
+                           ca.DM(coef.tolist()), uniq.size, n_in)
+    return sp, gather
+
+
+def _constraint_jacobian(node: ca.Function, muscle: bool, n: int, h: float, z: ca.MX,
+                         p: ca.MX, constraints: ca.MX, linear_part: ca.MX,
+                         rows: list[int]) -> ca.Function:
+    """IPOPT's constraint Jacobian, assembled like ``_lagrangian_hessian``: the residual of
+    Eq. 1 and the activation rates each involve one node; the rest of g is linear."""
+    big_n, nz = n + 1, z.numel()
+    nb = nz - int(sum(r * big_n for r in rows))
+    ny = int(sum(rows))
+    n_g = constraints.numel()
+    y, x0s = ca.SX.sym('y', ny), ca.SX.sym('x0', 2)
+    qk, qdk, qddk = y[0:6], y[6:12], _QDD_SCALE * y[12:18]
+    if muscle:
+        nm = rows[3]
+        res, _, adot = node(ca.vertcat(qk, qdk), qddk, y[18:18 + nm], y[18 + nm:], x0s)
+        v = ca.vertcat(res, adot)
+    else:
+        res, _ = node(ca.vertcat(qk, qdk), qddk, _TAU_SCALE * y[18:21], x0s)
+        v = res
+    jk = ca.jacobian(v, y)
+    r_loc, c_loc = (np.asarray(a) for a in jk.sparsity().get_triplet())
+    jk_fn = ca.Function('node_jacobian', [y, x0s], [ca.vertcat(*jk.nonzeros())],
+                        {'cse': True})
+    lin = ca.Function('linear_jacobian', [z], [ca.jacobian(linear_part, z)])(np.zeros(nz))
+    r_l, c_l = (np.asarray(a) for a in lin.sparsity().get_triplet())
+    local = _node_index(rows, n, nz, nb)
+    m = r_loc.size
+    res_off, rate_off = 12 * n, 12 * n + 6 * big_n + 12
+    out_r, out_c, src, coef = [], [], [], []
+    k = np.arange(big_n)[:, None]
+    src_all = k * m + np.arange(m)[None, :]                                   # [N, m]
+    cols = local[:, c_loc]
+    is_res = np.broadcast_to(r_loc < 6, (big_n, m))
+    out_r.append((res_off + 6 * k + r_loc[None, :])[is_res])
+    out_c.append(cols[is_res])
+    src.append(src_all[is_res])
+    coef.append(np.ones(int(is_res.sum())))
+    if muscle:
+        i = r_loc - 6
+        for shift, ok in ((-1, k >= 1), (0, k <= n - 1)):       # rows k - 1 and k of trapA
+            sel = ~is_res & np.broadcast_to(ok, (big_n, m))
+            out_r.append((rate_off + nm * (k + shift) + i[None, :])[sel])
+            out_c.append(cols[sel])
+            src.append(src_all[sel])
+            coef.append(np.full(int(sel.sum()), -h / 2))
+    n_node = m * big_n
+    out_r.append(r_l)
+    out_c.append(c_l)
+    src.append(n_node + np.arange(r_l.size))
+    coef.append(np.ones(r_l.size))
+    sp, gather = _gather(*(np.concatenate(a) for a in (out_r, out_c, src, coef)),
+                         (n_g, nz), n_node + r_l.size)
+    xz, xp = ca.MX.sym('x', nz), ca.MX.sym('p', p.numel())
+    y_all, _ = _node_variables(xz, rows, n, nb)
+    nodes = jk_fn.map(big_n, 'serial')(y_all, ca.repmat(xp[-2:], 1, big_n))
+    values = ca.mtimes(gather, ca.vertcat(ca.vec(nodes), ca.DM(lin.nonzeros())))
+    g = ca.Function('g', [z, p], [constraints])(xz, xp)
+    return ca.Function('nlp_jac_g', [xz, xp], [g, ca.MX(sp, values)], ['x', 'p'],
+                       ['g', 'jac_g_x'])
 
 
 def _lagrangian_hessian(node: ca.Function, muscle: bool, n: int, h: float, z: ca.MX,
@@ -213,31 +315,21 @@ def _lagrangian_hessian(node: ca.Function, muscle: bool, n: int, h: float, z: ca
     hc = ca.hessian(quad(zs, ps), zs)[0]
     hc = ca.evalf(ca.substitute(hc, ca.vertcat(zs, ps), ca.DM.zeros(nz + p.numel())))
     r_c, c_c = (np.asarray(v) for v in hc.sparsity().get_triplet())
-    # Global index of node k's local variables (the blocks, then the bias coefficients).
-    offsets = np.cumsum([0] + [r * big_n for r in rows])[:-1]
-    local = np.concatenate([off + r * np.arange(big_n)[:, None] + np.arange(r)[None, :]
-                            for off, r in zip(offsets, rows)], axis=1)       # [N, ny]
-    local = np.hstack([local, np.repeat(nz - nb + np.arange(nb)[None, :], big_n, 0)])
+    local = _node_index(rows, n, nz, nb)
     rr = np.concatenate([local[:, r_loc].ravel(), r_c])
     cc = np.concatenate([local[:, c_loc].ravel(), c_c])
-    upper = rr <= cc
-    cols = np.flatnonzero(upper)
-    keys = cc[upper] * nz + rr[upper]
-    uniq = np.unique(keys)
-    sp = ca.Sparsity.triplet(nz, nz, (uniq % nz).tolist(), (uniq // nz).tolist())
+    upper = np.flatnonzero(rr <= cc)                  # IPOPT takes the upper triangle
     n_in = r_loc.size * big_n + r_c.size
-    gather = ca.DM(ca.Sparsity.triplet(uniq.size, n_in, np.searchsorted(uniq, keys).tolist(),
-                                       cols.tolist()), 1.0)
+    sp, gather = _gather(rr[upper], cc[upper], upper, np.ones(upper.size), (nz, nz), n_in)
     # The Hessian function of IPOPT's interface: (x, p, lam_f, lam_g) -> triu(H).
     xz, xp, lf = ca.MX.sym('x', nz), ca.MX.sym('p', p.numel()), ca.MX.sym('lam_f')
     n_g = 12 * n + 6 * big_n + 12 + (rows[3] * n if muscle else 0)
     lg = ca.MX.sym('lam_g', n_g)
-    blocks = ca.vertsplit(xz, list(offsets) + [nz - nb, nz])
-    y_all = ca.vertcat(*[ca.reshape(b, r, big_n) for b, r in zip(blocks[:-1], rows)])
+    y_all, cb_all = _node_variables(xz, rows, n, nb)
     w_all = ca.reshape(xp[:3 * big_n], big_n, 3).T
     x0_all = ca.repmat(xp[-2:], 1, big_n)
     lres_all = ca.reshape(lg[12 * n:12 * n + 6 * big_n], 6, big_n)
-    args = [y_all, ca.repmat(blocks[-1], 1, big_n), w_all, ca.DM(basis.T), x0_all,
+    args = [y_all, ca.repmat(cb_all, 1, big_n), w_all, ca.DM(basis.T), x0_all,
             ca.repmat(lf, 1, big_n), lres_all]
     if muscle:
         lam_a = ca.reshape(lg[12 * n + 6 * big_n + 12:], rows[3], n)
