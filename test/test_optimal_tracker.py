@@ -44,19 +44,23 @@ def actual_jump(model, truth):
 
 
 def test_recovers_the_truth_from_clean_observations(model, truth, obs):
-    """Noise- and bias-free samples of the actual jump: torques within 0.2 % of peak, angles
-    within 0.05 deg and the jump within 0.2 %."""
+    """Noise- and bias-free samples of the actual jump: torques within 0.5 % of peak, angles
+    within 0.1 deg at every sample and the jump within 0.3 %. What remains is the
+    excitation-rate prior's smoothing of the optimised (near bang-bang) excitations: torques
+    0.07 / 0.35 / 0.36 %, angles 0.08 deg at worst, jump -0.21 % measured at the default weight
+    (0.02 / 0.07 / 0.06 %, under 0.05 deg, -0.08 % at a 100x smaller one, which tracks noisy data
+    20-40 % worse)."""
     clean = dataclasses.replace(
         obs, angles=truth.q[np.rint(obs.t_angles * 1080).astype(int), :4],
         wrench=truth.s[np.rint(obs.t_wrench * 1080).astype(int)])
     res = stage1(model, clean)
     assert res.ok, res.status
-    assert (contact_pct(res.t, res.tau, truth, truth.tau) < 0.2).all()
+    assert (contact_pct(res.t, res.tau, truth, truth.tau) < 0.5).all()
     m = res.t <= truth.liftoff_s
     idx = np.rint(res.t[m] * 1080).astype(int)
-    assert np.degrees(np.abs(res.q[m, :4] - truth.q[idx, :4])).max() < 0.05
+    assert np.degrees(np.abs(res.q[m, :4] - truth.q[idx, :4])).max() < 0.1
     jump = jump_from(model, res.t, res.q, res.qd, res.liftoff_s)['jump_height_m']
-    assert abs(jump / actual_jump(model, truth) - 1) < 0.002
+    assert abs(jump / actual_jump(model, truth) - 1) < 0.003
 
 
 def test_shipped_trial_torques_and_forces(model, truth, shipped):
@@ -75,7 +79,7 @@ def test_excitations_are_bounded_and_reproduce_the_motion(model, truth, shipped)
     """The estimate is a motion the muscles make: excitations and activations in [0, 1], and
     a forward simulation of its excitations (RK4, independent of the collocation) follows it
     open loop through the whole push-off: angles within 0.5 deg (the trapezoidal rule's error
-    at 1080 Hz, grown by the unstable open loop: 0.41 deg measured), lift-off within 2 ms (two
+    at 1080 Hz, grown by the unstable open loop: 0.37 deg measured), lift-off within 2 ms (two
     sample periods: the simulation's zero-force instant against the estimate's 2 % BW one),
     jump within 0.3 %."""
     mus = shipped.muscles
@@ -122,7 +126,7 @@ def test_other_noise_realisation(model, truth):
 def test_harsher_bias_still_beats_the_papers_tracker(model, truth):
     """Three-harmonic biases (harsher than the paper's one-lobe): on this seed the paper's
     tracker is off by 6 / 19 / 13 % of peak; the muscle-made estimate is better on every
-    joint (measured 1.7 / 7.1 / 5.4 %)."""
+    joint (measured 1.6 / 6.7 / 5.2 %)."""
     obs, _ = make_observations(truth, ObservationSettings(seed=17, bias_shape='harmonic'),
                                body_weight=model.p.body_weight)
     skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
@@ -136,7 +140,7 @@ def test_harsher_bias_still_beats_the_papers_tracker(model, truth):
 def test_runs_after_the_skeletal_tracker_loses_control(model, truth):
     """Three times the paper's noise (seed 9): the paper's tracker diverges near lift-off;
     optimal tracking from its partial result still estimates the torques (within 6 % of peak,
-    measured 1.1 / 4.7 / 2.8 %), the NMT runs, and the tracker's loss is reported."""
+    measured 1.0 / 4.3 / 2.7 %), the NMT runs, and the tracker's loss is reported."""
     from nmt_ros.study.pipeline import NMTSettings, run_nmt
 
     obs, _ = make_observations(truth, ObservationSettings(seed=9, noise_scale=3.0),
