@@ -75,6 +75,10 @@ class OptimalTrackingSettings:
     # size and solve time grow with the record (muscles: about 20 ms of CPU per sample).
     flight_s: float | None = 0.05
     max_intervals: int = 1080     # longer fits are refused (bounds the solve: ~25 s at 1 s)
+    # IPOPT's initial barrier: None = 1e-3 for muscle actuation (its guess, Stage 2 on the
+    # tracker's torques, is close: a small barrier keeps IPOPT near it) and IPOPT's 0.1 for
+    # torque actuation (1e-3 took 520 iterations on one noise seed, 0.1 converges).
+    mu_init: float | None = None
     max_iter: int = 500        # typical: 30-60 iterations (tested over 30 noise realisations)
 
 
@@ -170,8 +174,8 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
                         'print_time': False, 'show_eval_warnings': False,
                         'ipopt': {'print_level': 0, 'tol': st.tol, 'max_iter': st.max_iter,
                                   'linear_solver': 'mumps', 'sb': 'yes',
-                                  # the guess is close: a small barrier keeps IPOPT near it
-                                  'mu_init': 1e-3}})
+                                  'mu_init': st.mu_init if st.mu_init is not None
+                                  else (1e-3 if muscle else 0.1)}})
     _SOLVERS[key] = (solver, basis)
     return _SOLVERS[key]
 
