@@ -126,6 +126,21 @@ def _observations():
     return obs, sa, sw
 
 
+def _tracker_io(probe, source):
+    """(status probe and joint-torque list on ``probe``, angle and wrench publishers on
+    ``source``): what a test of the skeletal tracker node wires around it."""
+    from geometry_msgs.msg import WrenchStamped
+    from sensor_msgs.msg import JointState
+
+    from nmt_ros.nodes._ros import data_qos
+
+    status = StatusProbe(probe)
+    outputs = []
+    probe.create_subscription(JointState, TORQUES, outputs.append, data_qos(5000))
+    return (status, outputs, source.create_publisher(JointState, ANGLES, data_qos(5000)),
+            source.create_publisher(WrenchStamped, WRENCH, data_qos(5000)))
+
+
 @pytest.mark.slow
 def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_path):
     from geometry_msgs.msg import WrenchStamped
@@ -149,11 +164,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
         output=str(record), topics=[ANGLES, WRENCH, TORQUES], scan_period_s=0.02))
     probe = rclpy.create_node('probe', context=ros_context)
     source = rclpy.create_node('lab', context=ros_context)
-    status = StatusProbe(probe)
-    outputs = []
-    probe.create_subscription(JointState, TORQUES, outputs.append, data_qos(5000))
-    pub_a = source.create_publisher(JointState, ANGLES, data_qos(5000))
-    pub_w = source.create_publisher(WrenchStamped, WRENCH, data_qos(5000))
+    status, outputs, pub_a, pub_w = _tracker_io(probe, source)
     executor = SingleThreadedExecutor(context=ros_context)
     for n in (skel, probe, source, rec):
         executor.add_node(n)
@@ -244,23 +255,16 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
 def test_skeletal_tracker_reports_loss_of_control(ros_context):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from sensor_msgs.msg import JointState
 
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
-    from nmt_ros.nodes._ros import data_qos
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
     obs, sa, sw = _observations()
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
         lookahead_s=0.02, substeps=1, idle_flush_s=0.3, max_angle_error_deg=0.001))
     probe = rclpy.create_node('probe3', context=ros_context)
-    status = StatusProbe(probe)
-    outputs = []
-    probe.create_subscription(JointState, TORQUES, outputs.append, data_qos(5000))
-    from geometry_msgs.msg import WrenchStamped
-    pub_a = probe.create_publisher(JointState, ANGLES, data_qos(5000))
-    pub_w = probe.create_publisher(WrenchStamped, WRENCH, data_qos(5000))
+    status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(skel)
     executor.add_node(probe)
