@@ -11,7 +11,6 @@ import pytest
 
 from nmt_ros.study.metrics import jump_from
 from nmt_ros.study.observations import ObservationSettings, make_observations
-from nmt_ros.study.pipeline import joint_kinematics
 from nmt_ros.study.reference import simulate_musculoskeletal_rk4
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
@@ -104,13 +103,11 @@ def test_excitations_are_bounded_and_reproduce_the_motion(model, truth, shipped)
 def test_stage2_tracks_the_muscle_made_torques(model, truth, shipped):
     """Torques the muscles can make are ones Stage 2 can track: under 3 % of each joint's peak
     (issue 5's target; on free-torque Stage-1 estimates the ankle misses it)."""
-    from nmt_ros.model.squat import rest_activations_for_posture
     from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
 
-    keep = shipped.t <= shipped.liftoff_s + 0.01
-    th = joint_kinematics(model, shipped.q[keep], shipped.qd[keep], shipped.qdd[keep])
-    a0 = rest_activations_for_posture(model, shipped.q[0], shipped.x0)
-    s2 = NeuromuscularTracker(model).track(shipped.t[keep], shipped.tau[keep], *th, a0)
+    s2 = NeuromuscularTracker(model).track_motion(shipped.t, shipped.q, shipped.qd,
+                                                  shipped.qdd, shipped.tau, shipped.x0,
+                                                  shipped.liftoff_s + 0.01)
     assert (100 * s2.rms_error_relative < 3.0).all(), s2.rms_error_relative
 
 

@@ -13,7 +13,6 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.model.squat import rest_activations_for_posture
 from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
 from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
@@ -143,15 +142,13 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         say('Stage 2: neuromuscular tracker (LQT)')
         c = time.process_time()
         t_stop = (skt.liftoff_s if np.isfinite(skt.liftoff_s) else skt.t[-1])
-        keep = skt.t <= t_stop + settings.stage2_margin_s
-        th, thd, thdd = joint_kinematics(model, skt.q[keep], skt.qd[keep], skt.qdd[keep])
-        # Initial activations: those that hold the tracked initial posture at rest.
-        a0 = rest_activations_for_posture(model, skt.q[0], skt.x0)
         overrides = {} if settings.stage2_k_r is None else {'k_r': float(settings.stage2_k_r)}
         tracker = NeuromuscularTracker(model, load_stage2_settings(**overrides))
-        stage2 = tracker.track(skt.t[keep], skt.tau[keep], th, thd, thdd, a0,
-                               mode=settings.stage2_mode,
-                               window_length=settings.window_length_s)
+        stage2 = tracker.track_motion(skt.t, skt.q, skt.qd, skt.qdd, skt.tau, skt.x0,
+                                      t_stop + settings.stage2_margin_s,
+                                      mode=settings.stage2_mode,
+                                      window_length=settings.window_length_s)
+        a0 = stage2.a[0].copy()
         cpu['stage2'] = time.process_time() - c
 
         say('NMT forward simulation (muscles driven by the Stage-2 excitations)')

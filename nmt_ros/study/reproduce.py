@@ -135,7 +135,6 @@ def stage2_weight_study(model: JumperModel, truth: Truth, run: object, k_rs: lis
                         say: callable) -> list[dict]:
     """Stage 2 against its effort weight kR (Appendix B: 1000), on the actual torques and
     kinematics and on ``run``'s Stage 1: tracking, NMT jump, muscle forces vs actual."""
-    from nmt_ros.model.squat import rest_activations_for_posture
     from nmt_ros.study.metrics import jump_from
     from nmt_ros.study.pipeline import simulate_stage2
     from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
@@ -148,12 +147,9 @@ def stage2_weight_study(model: JumperModel, truth: Truth, run: object, k_rs: lis
                                   skt.tau, skt.x0, skt.liftoff_s)]
     rows = []
     for name, t, q, qd, qdd, tau, x0, lo in inputs:
-        keep = t <= lo + 0.01
-        th = joint_kinematics(model, q[keep], qd[keep], qdd[keep])
-        a0 = rest_activations_for_posture(model, q[0], x0)
         for k_r in k_rs:
             tracker = NeuromuscularTracker(model, load_stage2_settings(k_r=k_r))
-            s2 = tracker.track(t[keep], tau[keep], *th, a0)
+            s2 = tracker.track_motion(t, q, qd, qdd, tau, x0, lo + 0.01)
             sim = simulate_stage2(model, s2, q[0], qd[0], x0, float(s2.t[-1]) + 0.02)
             jump = jump_from(model, sim.t, sim.x[:, :6], sim.x[:, 6:12], sim.liftoff_s)
             m = s2.t <= truth.liftoff_s

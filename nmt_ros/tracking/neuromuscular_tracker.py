@@ -81,6 +81,7 @@ import numpy as np
 import yaml
 
 from nmt_ros.model.jumper import JumperModel, default_model
+from nmt_ros.model.squat import rest_activations_for_posture
 from nmt_ros.tracking import riccati
 
 SETTINGS_FILE = Path(__file__).resolve().parent / 'data' / 'stage2.yaml'
@@ -835,6 +836,19 @@ class NeuromuscularTracker:
         return replace(stream, reference=ref, muscle=muscle, next_start=next_start), steps
 
     # ------------------------------------------------------------------ batch
+    def track_motion(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     tau: np.ndarray, x0: np.ndarray, t_stop: float, mode: str = 'full',
+                     window_length: float | None = None) -> Stage2Result:
+        """Stage 2 on a Stage-1 motion: generalised coordinates q, qd, qdd [n, 6] and joint
+        torques tau [n, 3] at times t [s], up to ``t_stop`` [s], from the activations that hold
+        its first posture at rest on springs anchored at ``x0``."""
+        keep = np.asarray(t) <= t_stop
+        m = self.model
+        theta = [m.batch(m.joint_angles, x[keep])[0] for x in (q, qd, qdd)]
+        a0 = rest_activations_for_posture(m, q[0], x0)
+        return self.track(t[keep], tau[keep], *theta, a0, mode=mode,
+                          window_length=window_length)
+
     def track(self, t: np.ndarray, tau_ref: np.ndarray, theta: np.ndarray,
               theta_dot: np.ndarray, theta_ddot: np.ndarray, a0: np.ndarray,
               mode: str = 'full', window_length: float | None = None,

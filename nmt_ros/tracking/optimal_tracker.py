@@ -435,14 +435,11 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
 def _muscle_guess(model: JumperModel, guess: SKTResult) -> tuple[np.ndarray, np.ndarray]:
     """Activations and excitations [n, 9] that make the guess's torques: Stage 2 on them
     (up to the guess's lift-off + 10 ms), from the activations that hold its first posture."""
-    from nmt_ros.model.squat import rest_activations_for_posture
     from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
 
     t_stop = guess.liftoff_s if np.isfinite(guess.liftoff_s) else guess.t[-1]
-    keep = guess.t <= t_stop + 0.01
-    theta = [model.batch(model.joint_angles, x[keep])[0] for x in (guess.q, guess.qd, guess.qdd)]
-    a0 = rest_activations_for_posture(model, guess.q[0], guess.x0)
-    stage2 = NeuromuscularTracker(model).track(guess.t[keep], guess.tau[keep], *theta, a0)
+    stage2 = NeuromuscularTracker(model).track_motion(guess.t, guess.q, guess.qd, guess.qdd,
+                                                      guess.tau, guess.x0, t_stop + 0.01)
     return stage2.a, stage2.u
 
 
