@@ -1,0 +1,458 @@
+"""The moving-horizon estimator: Stage 1 live and offline, muscle-driven, with a fixed lag.
+
+Fed the raw samples of both streams in time order (``add_angles``, ``add_wrench``), it runs
+one update per 1 / update_rate_hz of DATA time, once both streams have reached that instant
+(or one stream is ``max_wait_s`` ahead of the other: a stalled stream is not waited for).
+Every decision depends on sample times and values only, never on the wall clock, so the
+estimates are a function of the input stream (the same offline, live at 1x or 4x, loaded or
+not). An update extends the window's splines to the new data, takes ``iterations``
+Levenberg-Marquardt steps on the whole window (``window.SlidingWindow``) and marginalises what
+fell out of it into the arrival cost. Each update emits, for every force-plate instant:
+
+* a low-latency estimate once the update covering it has run (as causal as the method is:
+  the window's newest end), and
+* the refined estimate once data ``lag_s`` past it has been used.
+
+Start: once ``start_window_s`` of data arrived, the window is initialised from the data
+(filtered angles, the ankle height the vertical force implies, the ground wrench, activations
+from inverse dynamics + static optimisation made feasible for Eq. 8a) and solved with a
+continuation on the dynamics' weight. Loss of control (the newest data no longer explained,
+non-finite numbers, a singular step) is detected, reported and followed by the same
+initialisation from the newest data.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nmt_ros.model.compiled import compiled
+from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.squat import rest_activations
+from nmt_ros.tracking.moving_horizon.point_functions import (
+    PointMap,
+    excitation,
+    output_function,
+)
+from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV, NX, PLATE
+from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKernel, capacity
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+from nmt_ros.tracking.moving_horizon.spline import KnotGrid
+from nmt_ros.tracking.moving_horizon.window import SlidingWindow
+
+
+@dataclass
+class EstimateBlock:
+    """Estimates at instants t [n] (trial time, s) of one kind ('refined' | 'low_latency')."""
+
+    kind: str
+    t: np.ndarray
+    q: np.ndarray           # [n, 6] rad, m
+    qd: np.ndarray          # [n, 6]
+    qdd: np.ndarray         # [n, 6]
+    tau: np.ndarray         # [n, 3] N m: the muscles' joint torques (ankle, knee, hip)
+    theta: np.ndarray       # [n, 3] rad: joint angles (ankle_angle, knee_angle, hip_flexion)
+    theta_dot: np.ndarray   # [n, 3] rad/s
+    f: np.ndarray           # [n, 9] N: musculotendon forces
+    a: np.ndarray           # [n, 9]
+    u: np.ndarray           # [n, 9] excitations (Eq. 8a inverted)
+    s: np.ndarray           # [n, 3] estimated ground wrench (N, N, N m about the foot COM)
+    plate: np.ndarray       # [NX] the force plate's error model (residuals.PLATE)
+
+    def part(self, kind: str, rows: slice) -> EstimateBlock:
+        """The rows ``rows`` as a block of ``kind``."""
+        return EstimateBlock(kind=kind, plate=self.plate, **{
+            f: getattr(self, f)[rows] for f in ('t', 'q', 'qd', 'qdd', 'tau', 'theta',
+                                                 'theta_dot', 'f', 'a', 'u', 's')})
+
+
+@dataclass
+class EstimatorEvent:
+    """Something the status should say: level 'info' | 'warn' | 'error', data time t [s]."""
+
+    level: str
+    t: float
+    message: str
+    values: dict = field(default_factory=dict)
+
+
+class MovingHorizonEstimator:
+    """Streaming Stage 1 (see the module docstring). One object per trial."""
+
+    def __init__(self, model: JumperModel, settings: MovingHorizonSettings | None = None,
+                 max_wait_s: float = 0.1) -> None:
+        self.model = model
+        self.settings = st = settings if settings is not None else MovingHorizonSettings()
+        st.validate()
+        bw = model.p.body_weight
+        m = model.p.muscles
+        mass_diag = np.diag(np.asarray(model.mass_matrix(np.zeros(6))))
+        self.kernel = SegmentKernel(model, KernelSpec(
+            angle_capacity=capacity(st.angle_rate_hz, st.knot_rate_hz),
+            wrench_capacity=capacity(st.wrench_rate_hz, st.knot_rate_hz),
+            dt=1.0 / st.knot_rate_hz, angle_sd=tuple(st.angle_sd()),
+            wrench_sd=tuple(st.wrench_sd(bw)), huber_k=st.huber_k,
+            sd_dyn=tuple(np.maximum(st.dynamics_sd * mass_diag, st.dynamics_sd_floor)),
+            sd_height=st.contact_height_sd_m, sd_slip=st.contact_slip_sd_m_s,
+            full_load=st.contact_full_load_bw * bw, stiffness=float(model.p.contact.k_y),
+            w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
+            tau_act=m.tau_act, tau_deact=m.tau_deact))
+        self.outputs = PointMap(compiled(output_function(model)))
+        self.plate_sd = np.asarray(st.plate_sd, dtype=float)
+        self.plate_drift = np.asarray(st.plate_drift_sd, dtype=float) ** 2
+        self.max_wait_s = max_wait_s
+        self.period = 1.0 / st.update_rate_hz
+        self.grid: KnotGrid | None = None
+        self.window: SlidingWindow | None = None
+        self.pending_angles: list[tuple[float, np.ndarray]] = []
+        self.pending_wrench: list[tuple[float, np.ndarray]] = []
+        self.history_angles = spline_history(4)
+        self.history_wrench = spline_history(3)
+        self.newest = [-np.inf, -np.inf]       # newest angle / wrench sample time
+        self.next_update: float | None = None
+        self.updated_until = -np.inf           # data time covered by the last update
+        self.out_low: list[float] = []         # instants waiting for a low-latency estimate
+        self.out_refined: list[float] = []     # instants waiting for the refined estimate
+        self.events: list[EstimatorEvent] = []
+        self.damping = st.damping
+        self.unhealthy_since: float | None = None
+        self.round_robin = 0
+        self.state = 'waiting'                 # waiting | tracking | finished
+        self.updates = 0
+        self.restarts = 0
+
+    # ------------------------------------------------------------------ inputs
+    def add_angles(self, t: float, theta: np.ndarray) -> None:
+        """A mocap sample: segment angles [4] rad at trial time t [s] (NaN = occluded)."""
+        self._add(0, t, np.asarray(theta, dtype=float).reshape(4))
+
+    def add_wrench(self, t: float, s: np.ndarray) -> None:
+        """A force-plate sample: [Fx, Fy, Mz about the foot COM] at trial time t [s]."""
+        self._add(1, t, np.asarray(s, dtype=float).reshape(3))
+
+    def _add(self, k: int, t: float, y: np.ndarray) -> None:
+        if t <= self.newest[k]:
+            raise ValueError(f'sample at t = {t:.6f} s is not after the previous one '
+                             f'({self.newest[k]:.6f} s)')
+        if t <= self.updated_until:
+            raise ValueError(f'sample at t = {t:.6f} s arrived after the update that covered '
+                             f'it (t <= {self.updated_until:.6f} s): too late')
+        self.newest[k] = t
+        (self.pending_angles if k == 0 else self.pending_wrench).append((float(t), y))
+        if k == 1:
+            self.out_low.append(float(t))
+            self.out_refined.append(float(t))
+        if self.grid is None:
+            self.grid = KnotGrid(float(t), 1.0 / self.settings.knot_rate_hz)
+
+    # ------------------------------------------------------------------ stepping
+    def poll(self) -> list[EstimateBlock]:
+        """Run every update the data now allow; the estimates that became available."""
+        blocks: list[EstimateBlock] = []
+        while self.state != 'finished':
+            t_u = self._next_update_time()
+            if t_u is None or not self._ready(t_u):
+                break
+            blocks += self._update(t_u)
+        return blocks
+
+    def finish(self) -> list[EstimateBlock]:
+        """End of the data: update to the last sample and emit everything left."""
+        blocks: list[EstimateBlock] = []
+        last = max(self.newest)
+        if not np.isfinite(last) or self.state == 'finished':
+            self.state = 'finished'
+            return blocks
+        while True:
+            t_u = self._next_update_time()
+            if t_u is None or t_u > last + 1e-12:
+                break
+            blocks += self._update(t_u)
+        if self.updated_until < last - 1e-12:
+            blocks += self._update(last)
+        if self.window is not None:
+            blocks += self._emit(self.updated_until, final=True)
+        self.state = 'finished'
+        return blocks
+
+    def _next_update_time(self) -> float | None:
+        if self.grid is None:
+            return None
+        if self.next_update is None:
+            return self.grid.t_ref + self.settings.start_window_s
+        return self.next_update
+
+    def _ready(self, t_u: float) -> bool:
+        lo, hi = min(self.newest), max(self.newest)
+        return lo >= t_u - 1e-12 or hi >= t_u + self.max_wait_s
+
+    def _take_pending(self, t_u: float) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        out = []
+        for name, k in (('pending_angles', 4), ('pending_wrench', 3)):
+            pend = getattr(self, name)
+            n = 0
+            while n < len(pend) and pend[n][0] <= t_u + 1e-12:
+                n += 1
+            taken, rest = pend[:n], pend[n:]
+            setattr(self, name, rest)
+            out.append((np.array([p[0] for p in taken]),
+                        np.array([p[1] for p in taken]).reshape(len(taken), k)))
+        return tuple(out)
+
+    def _update(self, t_u: float) -> list[EstimateBlock]:
+        st = self.settings
+        angles, wrench = self._take_pending(t_u)
+        self.history_angles.add(*angles, keep_after=t_u - st.start_window_s - 1e-9)
+        self.history_wrench.add(*wrench, keep_after=t_u - st.start_window_s - 1e-9)
+        self.updated_until = t_u
+        self.next_update = t_u + self.period
+        self.updates += 1
+        if self.window is None:
+            if not self._start(t_u):
+                return []
+            return self._emit(t_u)
+        w = self.window
+        w.extend(self.grid.segment_of(t_u))
+        w.add_samples(angles, wrench)
+        try:
+            self.damping = w.solve(self._to_relinearise(), st.iterations, self.damping,
+                                   check=st.check_steps)
+            ok = bool(np.isfinite(w.C).all() and np.isfinite(w.plate).all())
+        except np.linalg.LinAlgError:
+            ok = False
+        if ok:
+            ok = self._healthy(t_u)
+        if not ok:
+            self.events.append(EstimatorEvent('error', t_u, 'loss of control: the window no '
+                                              'longer explains the data; re-initialising '
+                                              'from the newest observations'))
+            self.window = None
+            self.restarts += 1
+            if not self._start(t_u):
+                return []
+        blocks = self._emit(t_u)
+        self._slide(t_u)
+        return blocks
+
+    def _to_relinearise(self) -> np.ndarray:
+        """The newest ``relinearise_s`` of segments, plus ``relinearise_older`` older ones in
+        turn (a deterministic round robin)."""
+        st, w = self.settings, self.window
+        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
+        newest = np.arange(max(w.first, w.last - n_new + 1), w.last + 1)
+        older = np.arange(w.first, newest[0])
+        pick = []
+        for _ in range(min(st.relinearise_older, older.size)):
+            self.round_robin = (self.round_robin + 1) % older.size
+            pick.append(older[self.round_robin])
+        return np.unique(np.concatenate([newest, np.array(pick, dtype=np.int64)]))
+
+    def _healthy(self, t_u: float) -> bool:
+        """The newest data explained: mean normalised residual^2 of the angle and wrench
+        rows over the newest segments below ``max_cost_per_row`` (else, for longer than
+        ``recover_after_s``, a loss of control)."""
+        st, w = self.settings, self.window
+        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
+        kept = w.rows(np.arange(max(w.first, w.last - n_new + 1), w.last + 1))
+        per_row = float(kept[:, 0].sum() + kept[:, 2].sum()) / max(
+            float(kept[:, 1].sum() + kept[:, 3].sum()), 1.0)
+        if per_row > st.max_cost_per_row:
+            if self.unhealthy_since is None:
+                self.unhealthy_since = t_u
+                self.events.append(EstimatorEvent('warn', t_u, 'observations poorly '
+                                                  'explained', {'cost_per_row': per_row}))
+            return t_u - self.unhealthy_since < st.recover_after_s
+        self.unhealthy_since = None
+        return True
+
+    def _slide(self, t_u: float) -> None:
+        keep_from = self.grid.segment_of(t_u - self.settings.window_s)
+        if keep_from > self.window.first:
+            self.window.drop_before(keep_from)
+
+    # ------------------------------------------------------------------ outputs
+    def _emit(self, t_u: float, final: bool = False) -> list[EstimateBlock]:
+        st = self.settings
+        lo = self.window.t_start
+        ready = {}
+        for kind, queue, until in (('low_latency', 'out_low', t_u),
+                                   ('refined', 'out_refined', t_u if final else t_u - st.lag_s)):
+            pend = getattr(self, queue)
+            n = 0
+            while n < len(pend) and pend[n] <= until + 1e-12:
+                n += 1
+            now, rest = pend[:n], pend[n:]
+            setattr(self, queue, rest)
+            dropped = [t for t in now if t < lo - 1e-12]
+            if dropped and kind == 'refined':
+                self.events.append(EstimatorEvent(
+                    'warn', t_u, f'{len(dropped)} instants without a refined estimate '
+                    '(re-initialisation)', {'from_s': dropped[0], 'to_s': dropped[-1]}))
+            now = [t for t in now if t >= lo - 1e-12]
+            if now:
+                ready[kind] = np.array(now)
+        if not ready:
+            return []
+        kinds = list(ready)
+        both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
+        blocks, start = [], 0
+        for k in kinds:
+            n = ready[k].size
+            blocks.append(both.part(k, slice(start, start + n)))
+            start += n
+        return blocks
+
+    def estimates(self, kind: str, t: np.ndarray) -> EstimateBlock:
+        """Evaluate the window at instants t (inside it)."""
+        w = self.window
+        v = w.values(t, 3)
+        q, qd, qdd = (v[:, k, LAYOUT['q']] for k in range(3))
+        a = v[:, 0, LAYOUT['a']]
+        tau, f, th, thd = self.outputs(q, qd, a)
+        m = self.model.p.muscles
+        ex = excitation(a, v[:, 1, LAYOUT['a']], v[:, 2, LAYOUT['a']], m.tau_act, m.tau_deact)
+        return EstimateBlock(kind=kind, t=t, q=q, qd=qd, qdd=qdd, tau=tau, theta=th,
+                             theta_dot=thd, f=f, a=a, u=ex.u, s=v[:, 0, LAYOUT['s']],
+                             plate=w.plate.copy())
+
+    # ------------------------------------------------------------------ start
+    def _start(self, t_u: float) -> bool:
+        """Initialise the window on the newest ``start_window_s`` of data (False: too
+        little data yet)."""
+        st = self.settings
+        ta, ya = self.history_angles.get()
+        tw, yw = self.history_wrench.get()
+        if np.isfinite(ya).all(axis=1).sum() < 2 or np.isfinite(yw).all(axis=1).sum() < 4:
+            return False
+        first = self.grid.segment_of(max(t_u - st.start_window_s, self.grid.t_ref))
+        last = self.grid.segment_of(t_u)
+        t0 = self.grid.time(first) - 1e-12
+        sel_a, sel_w = ta >= t0, tw >= t0
+        C, plate = initial_control_points(self.model, self.grid, first, last - first + 1,
+                                          ta[sel_a], ya[sel_a], tw[sel_w], yw[sel_w],
+                                          self.plate_sd)
+        capacity = int(np.ceil((st.window_s + st.start_window_s + 2 * self.period)
+                               * st.knot_rate_hz)) + 8
+        w = SlidingWindow(self.grid, first, C, plate, self.kernel, self.plate_drift, capacity)
+        w.add_samples((ta[sel_a], ya[sel_a]), (tw[sel_w], yw[sel_w]))
+        w.start_prior(self.plate_sd)
+        segments = np.arange(w.first, w.last + 1)
+        per_stage = max(1, st.start_iterations // (len(st.start_dynamics_sd) + 1))
+        damping = st.damping
+        for sd in st.start_dynamics_sd:
+            w.lin_seg[:] = -1
+            damping = w.solve(segments, per_stage, damping,
+                              dynamics_scale=sd / st.dynamics_sd)
+        w.lin_seg[:] = -1
+        self.damping = w.solve(segments, st.start_iterations
+                               - per_stage * len(st.start_dynamics_sd), damping)
+        self.window = w
+        self.state = 'tracking'
+        self.unhealthy_since = None
+        self.events.append(EstimatorEvent('info', t_u, 'initialised', {
+            'window_s': float(w.t_end - w.t_start),
+            'cost': float(w.model_cost(w.C, w.plate))}))
+        return True
+
+
+class spline_history:  # noqa: N801 - a small record with methods, named for what it holds
+    """The newest samples of one stream (for initialisation)."""
+
+    def __init__(self, k: int) -> None:
+        self.t = np.zeros(0)
+        self.y = np.zeros((0, k))
+
+    def add(self, t: np.ndarray, y: np.ndarray, keep_after: float) -> None:
+        self.t = np.concatenate([self.t, t])
+        self.y = np.concatenate([self.y, y])
+        keep = self.t >= keep_after
+        self.t, self.y = self.t[keep], self.y[keep]
+
+    def get(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.t, self.y
+
+
+def initial_control_points(model: JumperModel, grid: KnotGrid, first: int, n_seg: int,
+                           ta: np.ndarray, ya: np.ndarray, tw: np.ndarray, yw: np.ndarray,
+                           plate_sd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A dynamically consistent starting point for a short window from the data alone:
+    (C [n_seg + 3, NV], plate parameters [NX]).
+
+    The state at the window's first instant: the angles and rates of a straight-line fit of
+    the window's samples (rates zero when the body is at rest: rates below 0.2 rad/s and the
+    vertical force within 10 % of body weight); when loaded, the foot flat (its observed
+    angle is the noisiest channel) at the height where the springs carry the observed
+    vertical force, else 5 cm above the ground. The motion continues at that rate over the
+    window; activations are the rest activations of that posture's torques (static
+    optimisation), the wrench the springs' (anchored so that they carry the observed
+    fore-aft force), and the force plate's offsets what is left of the observed wrench
+    (within 3 SD of their prior; gains and COP offset zero).
+    """
+    n = n_seg + 3
+    ya, yw = _fill_nan(ta, ya), _fill_nan(tw, yw)
+    t0 = float(grid.time(first))
+    # local linear fits of the angles and wrench around t0 (the window is short)
+    sa = np.polyfit(ta - t0, ya, 1) if ta.size > 1 else np.vstack([np.zeros(4), ya[0]])
+    sw = np.polyfit(tw - t0, yw, 1) if tw.size > 1 else np.vstack([np.zeros(3), yw[0]])
+    theta0, rate0 = sa[1], sa[0]
+    s0 = sw[1]
+    bw = model.p.body_weight
+    at_rest = (np.abs(rate0[1:]).max() < 0.2 and abs(s0[1] - bw) < 0.1 * bw)
+    q0 = np.r_[theta0, 0.0, 0.0]
+    qd0 = np.r_[rate0, 0.0, 0.0] * (not at_rest)
+    loaded = s0[1] > 0.05 * bw
+    if loaded:   # the foot flat (its noisy angle ignored), the springs carrying Fy
+        q0[0] = flat_foot_angle(model)
+        qd0[0] = 0.0
+        q0[5] = ankle_height_for_force(model, q0, s0[1])
+    else:        # airborne: 5 cm above the ground
+        q0[5] = model_ankle_height(model) + 0.05
+    x0 = model.anchors_at(q0)
+    if loaded:   # the horizontal springs carry the observed fore-aft force
+        x0 = x0 + s0[0] / (x0.size * model.p.contact.k_x)
+    t_ctrl = grid.time(first + np.arange(n) - 1)     # control point i ~ value at knot i - 1
+    C = np.zeros((n, NV))
+    C[:, LAYOUT['q']] = q0[None, :] + (t_ctrl - t0)[:, None] * qd0[None, :]
+    springs = model.call(model.contact_outputs, q0, qd0, x0)[0]
+    theta_j = model.call(model.joint_angles, q0)[0]
+    tau, _ = model.inverse_dynamics(q0[None], qd0[None], np.zeros((1, 6)), springs[None])
+    a0 = rest_activations(model, theta_j, tau[0],
+                          model.call(model.joint_angles, qd0)[0]).a
+    C[:, LAYOUT['a']] = a0
+    C[:, LAYOUT['s']] = springs
+    plate = np.zeros(NX)
+    b = PLATE['b']
+    plate[b] = np.clip(s0 - springs, -3 * plate_sd[b], 3 * plate_sd[b])
+    return C, plate
+
+
+def model_ankle_height(model: JumperModel) -> float:
+    """Ankle height [m] with the foot upright and its lowest contact point on the ground."""
+    return -float(model.p.contact.points[:, 1].min())
+
+
+def flat_foot_angle(model: JumperModel) -> float:
+    """Foot angle [rad] at which its heel and toe points are at the same height."""
+    (hx, hy), (tx, ty) = model.p.contact.points
+    return float(-np.arctan2(ty - hy, tx - hx))
+
+
+def ankle_height_for_force(model: JumperModel, q: np.ndarray, fy: float) -> float:
+    """Ankle height r2 [m] at which the springs at rest (anchors under the points) carry
+    the vertical force fy [N] in posture q (bisection; the force falls with height)."""
+    lo, hi = model_ankle_height(model) - 0.03, model_ankle_height(model) + 0.05
+    qq = np.asarray(q, dtype=float).copy()
+    for _ in range(50):
+        qq[5] = 0.5 * (lo + hi)
+        f = float(model.call(model.contact_outputs, qq, np.zeros(6), model.anchors_at(qq))[0][1])
+        lo, hi = (qq[5], hi) if f > fy else (lo, qq[5])
+    return 0.5 * (lo + hi)
+
+
+def _fill_nan(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    y = y.copy()
+    for c in range(y.shape[1]):
+        ok = np.isfinite(y[:, c])
+        if ok.any() and not ok.all():
+            y[~ok, c] = np.interp(t[~ok], t[ok], y[ok, c])
+    return y

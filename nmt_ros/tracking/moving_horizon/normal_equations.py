@@ -1,0 +1,150 @@
+"""Banded Gauss-Newton normal equations of the moving-horizon estimator, and marginalisation.
+
+Unknowns: NV values per control point (the layout of ``residuals.LAYOUT``), control points in
+time order, then NX window-wide parameters (the force plate's error model,
+``residuals.PLATE``). Every residual touches four consecutive control points (a spline
+segment) and possibly the parameters, so H = J'J is banded (half bandwidth 4 NV - 1) with a
+dense border of NX columns: solved by LAPACK's banded Cholesky (pbtrf/pbtrs) and a Schur
+complement on the border.
+
+Sign convention: ``g = -J' r`` (the steepest-descent direction), so a step solves H dz = g.
+
+Marginalisation (the arrival cost): eliminating the oldest control points m from the
+quadratic model 1/2 dz' H dz - g' dz leaves, on the kept variables k,
+
+    H_p = H_kk - H_km H_mm^-1 H_mk,   g_p = g_k - H_km H_mm^-1 g_m,
+
+a prior on the next control points (and the parameters) linearised where the eliminated terms
+were. ``diffuse`` adds process noise to some of the prior's variables in information form
+(Woodbury), so that slowly drifting parameters stay free to drift.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, get_lapack_funcs
+
+from nmt_ros.tracking.moving_horizon.residuals import NX
+
+
+@dataclass
+class Prior:
+    """Quadratic arrival cost 1/2 d'H d - g'd, d = [c_first..c_first+k-1, x0] - lin."""
+
+    first: int                # global index of the first control point it covers
+    n_ctrl: int
+    H: np.ndarray             # [n_ctrl NV + NX]^2
+    g: np.ndarray             # [n_ctrl NV + NX]
+    lin: np.ndarray           # linearisation point [n_ctrl NV + NX]
+
+    def shifted(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, g) of the prior at the point z (same layout as ``lin``)."""
+        return self.H, self.g - self.H @ (z - self.lin)
+
+
+class NormalEquations:
+    """H (banded + border) and g of one Gauss-Newton step over n control points."""
+
+    def __init__(self, n_ctrl: int, nv: int, nx: int = NX) -> None:
+        self.nv = nv
+        self.nx = nx
+        self.nb = 4 * nv                 # variables of one segment
+        self.n_ctrl = n_ctrl
+        self.n = n_ctrl * nv
+        self.kd = self.nb - 1
+        self.ab = np.zeros((self.kd + 1, self.n))
+        self.g = np.zeros(self.n)
+        self.Hcx = np.zeros((self.n, nx))
+        self.Hxx = np.zeros((nx, nx))
+        self.gx = np.zeros(nx)
+        self._bi, self._bj = np.triu_indices(self.nb)
+
+    def add_segments(self, seg: np.ndarray, H: np.ndarray, g: np.ndarray,
+                     band: np.ndarray | None = None) -> None:
+        """Add segment blocks: ``seg`` [S] (local index of the segment's first control
+        point), H [S, nb + NX, nb + NX], g [S, nb + NX]; ``band`` [S, kd + 1, nb]: the
+        blocks' upper band form (``band_form`` of H[:, :nb, :nb]) if already made."""
+        nb = self.nb
+        if band is None:
+            band = band_form(H[:, :nb, :nb])
+        for k, s in enumerate(seg):
+            lo = s * self.nv
+            self.ab[:, lo:lo + nb] += band[k]
+            self.g[lo:lo + nb] += g[k, :nb]
+            self.Hcx[lo:lo + nb] += H[k, :nb, nb:]
+        self.Hxx += H[:, nb:, nb:].sum(0)
+        self.gx += g[:, nb:].sum(0)
+
+    def add_dense(self, first: int, k: int, H: np.ndarray, g: np.ndarray) -> None:
+        """Add a dense block over control points first..first+k-1 (local) and x0."""
+        m = k * self.nv
+        if m > self.nb:
+            raise ValueError('a dense block wider than a segment does not fit the band')
+        lo = first * self.nv
+        i, j = np.triu_indices(m)
+        self.ab[self.kd + i - j, lo + j] += H[:m, :m][i, j]
+        self.g[lo:lo + m] += g[:m]
+        self.Hcx[lo:lo + m] += H[:m, m:]
+        self.Hxx += H[m:, m:]
+        self.gx += g[m:]
+
+    def diagonal(self) -> np.ndarray:
+        return np.concatenate([self.ab[self.kd], np.diag(self.Hxx)])
+
+    def solve(self, damping: np.ndarray) -> np.ndarray:
+        """dz = (H + diag(damping))^-1 g; raises LinAlgError if not positive definite."""
+        ab = self.ab.copy()
+        ab[self.kd] += damping[:self.n]
+        pbtrf, pbtrs = _PBTRF, _PBTRS
+        c, info = pbtrf(ab, lower=0)
+        if info != 0:
+            raise np.linalg.LinAlgError(f'normal equations not positive definite ({info})')
+        y, info = pbtrs(c, np.column_stack([self.g, self.Hcx]), lower=0)
+        y1, y2 = y[:, 0], y[:, 1:]
+        schur = self.Hxx + np.diag(damping[self.n:]) - self.Hcx.T @ y2
+        dx = np.linalg.solve(schur, self.gx - self.Hcx.T @ y1)
+        return np.concatenate([y1 - y2 @ dx, dx])
+
+
+_PBTRF, _PBTRS = get_lapack_funcs(('pbtrf', 'pbtrs'), (np.zeros((2, 2)),))
+def band_form(H: np.ndarray) -> np.ndarray:
+    """Upper band form [S, nb, nb] of square blocks H [S, nb, nb] (half bandwidth nb - 1:
+    row kd + i - j, column j holds H[i, j]; zero outside the block)."""
+    nb = H.shape[-1]
+    rows, cols = _block_band_index(nb, nb - 1)
+    return H[:, rows, cols] * _block_band_mask(nb, nb - 1)
+
+
+def _block_band_index(nb: int, kd: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) [kd + 1, nb] in an nb x nb block of each entry of its upper band form
+    (LAPACK: ab[kd + i - j, j] = A[i, j]); out-of-block entries point at (0, 0), masked."""
+    j = np.arange(nb)[None, :]
+    i = j - (kd - np.arange(kd + 1))[:, None]
+    return np.where(i >= 0, i, 0), np.broadcast_to(j, i.shape)
+
+
+def _block_band_mask(nb: int, kd: int) -> np.ndarray:
+    j = np.arange(nb)[None, :]
+    return (j - (kd - np.arange(kd + 1))[:, None] >= 0).astype(float)
+
+
+def marginalize(H: np.ndarray, g: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eliminate the first m variables of the dense quadratic (H, g): (H_p, g_p) on the rest."""
+    Hmm, Hmk, Hkk = H[:m, :m], H[:m, m:], H[m:, m:]
+    fac = cho_factor(Hmm + 1e-12 * np.eye(m) * max(1.0, float(np.abs(np.diag(Hmm)).max())))
+    X = cho_solve(fac, np.column_stack([Hmk, g[:m]]))
+    Hp = Hkk - Hmk.T @ X[:, :-1]
+    gp = g[m:] - Hmk.T @ X[:, -1]
+    return 0.5 * (Hp + Hp.T), gp
+
+
+def diffuse(H: np.ndarray, g: np.ndarray, idx: np.ndarray, variance: np.ndarray,
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The prior (H, g) after zero-mean noise of ``variance`` is added to variables ``idx``:
+    H' = (H^-1 + E V E')^-1 = H - H E (V^-1 + E' H E)^-1 E' H (no inverse of H, which may
+    be singular), and g' = H' H^-1 g = g - H E (V^-1 + E' H E)^-1 E' g (the mean kept)."""
+    HE = H[:, idx]
+    K = np.linalg.inv(np.diag(1.0 / np.asarray(variance, dtype=float)) + HE[idx])
+    H2 = H - HE @ K @ HE.T
+    return 0.5 * (H2 + H2.T), g - HE @ (K @ g[idx])

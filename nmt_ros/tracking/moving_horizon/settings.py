@@ -1,0 +1,87 @@
+"""Settings of the moving-horizon estimator (Stage 1, muscle-driven, fixed lag).
+
+The measurement weights are the observations' noise standard deviations (the observation
+specification: 5/3/2/1 deg for foot..HAT, 2 % of body weight for the forces, that times the
+foot's 0.17 m heel-to-toe length for the moment); everything else is a property of the
+estimator, documented with its unit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MovingHorizonSettings:
+    """Trajectory resolution, window, weights and numerics of the estimator."""
+
+    # --- trajectories and timing
+    knot_rate_hz: float = 240.0        # B-spline knots per second (q, a, s, b)
+    update_rate_hz: float = 120.0      # Gauss-Newton updates per second of data
+    lag_s: float = 0.05                # refined estimate: this far behind the newest data
+    window_s: float = 0.1              # data span of the window (>= lag); older data is
+                                       # marginalised into the arrival cost
+    # --- the streams' nominal rates (the compiled kernel's sample capacity per knot interval;
+    # faster streams still work, with extra kernel calls)
+    angle_rate_hz: float = 120.0
+    wrench_rate_hz: float = 1080.0
+    # --- measurement model (observation specification)
+    angle_sd_deg: tuple[float, float, float, float] = (5.0, 3.0, 2.0, 1.0)  # foot..HAT
+    force_sd_bw: float = 0.02          # fore-aft and vertical force noise, fraction of BW
+    moment_lever_m: float = 0.17       # moment noise = force noise x this lever
+    huber_k: float = 3.0               # residuals beyond k SD weigh linearly (outliers)
+    # --- model error and priors
+    # Eq. 1 residual allowed per collocation point: row i is divided by
+    # max(dynamics_sd x M_ii, dynamics_sd_floor), i.e. an acceleration error [rad/s^2, m/s^2]
+    # (M_ii is constant in absolute-angle coordinates) but at least the floor [N m, N]: the
+    # foot (M_11 = 0.03 kg m^2) is nearly massless, its row a moment balance, and its
+    # acceleration not worth resolving (3 N m at 100 rad/s^2)
+    dynamics_sd: float = 0.1
+    dynamics_sd_floor: float = 0.5
+    # kinematic contact: a loaded contact point (its share of the vertical force, from the
+    # centre of pressure) stays at the springs' sinkage (load / stiffness) and does not slide
+    contact_height_sd_m: float = 0.002
+    contact_slip_sd_m_s: float = 0.02
+    contact_full_load_bw: float = 0.05  # a point with this share of body weight is fully held
+    excitation_weight: float = 1.0     # w_u: cost w_u int |u|^2 dt [1/s]
+    excitation_rate_weight: float = 0.1  # w_du: cost w_du int |du/dt|^2 dt [s]
+    bound_weight: float = 1e4          # penalty on excitations outside [0, 1] (per unit^2 s)
+    # force-plate error model (offsets b, gains eps, COP offset d): prior SD at a start and
+    # drift (random walk) per second
+    plate_sd: tuple[float, ...] = (20.0, 20.0, 3.0, 0.05, 0.05, 0.03)   # N, N, N m, -, -, m
+    plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.5, 0.005, 0.005, 0.002)  # per sqrt(s)
+    # --- numerics
+    iterations: int = 1                # Gauss-Newton iterations per update (at most)
+    check_steps: bool = False          # evaluate each step and keep it only if the cost fell
+                                       # (one more kernel call per iteration)
+    relinearise_s: float = 0.03        # the newest data span re-linearised at every update
+    relinearise_older: int = 2         # older segments re-linearised per update, in turn
+    damping: float = 1e-3              # Levenberg-Marquardt, relative to diag(H)
+    start_window_s: float = 0.025      # data in the first (cold) window: short, so that the
+                                       # state at its start with its rates fits it
+    start_iterations: int = 40
+    start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
+    # --- health (loss of control)
+    max_cost_per_row: float = 25.0     # mean normalised residual^2 of the newest data
+    recover_after_s: float = 0.05      # that long above the limit -> re-initialise
+    flight_force_bw: float = 0.05      # estimated vertical force below this: airborne
+
+    def with_(self, **kw: object) -> MovingHorizonSettings:
+        return replace(self, **kw)
+
+    def angle_sd(self) -> np.ndarray:
+        """[4] rad."""
+        return np.radians(np.asarray(self.angle_sd_deg, dtype=float))
+
+    def wrench_sd(self, body_weight: float) -> np.ndarray:
+        """[3] N, N, N m."""
+        f = self.force_sd_bw * body_weight
+        return np.array([f, f, f * self.moment_lever_m])
+
+    def validate(self) -> None:
+        if self.window_s < self.lag_s + 1.0 / self.update_rate_hz:
+            raise ValueError(f'window_s ({self.window_s} s) must exceed lag_s + one update '
+                             f'({self.lag_s + 1.0 / self.update_rate_hz:.4f} s)')
+        if self.knot_rate_hz < self.update_rate_hz:
+            raise ValueError('knot_rate_hz must be at least update_rate_hz')

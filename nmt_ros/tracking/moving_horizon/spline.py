@@ -1,0 +1,84 @@
+"""Uniform cubic B-splines: the trajectories of the moving-horizon estimator.
+
+A signal x(t) [k channels] is sum_j c_j B(t / dt - j) with control points c_j on a uniform
+knot grid t_j = t_ref + j dt. On segment j (t_j <= t < t_j+1, local u = (t - t_j) / dt in
+[0, 1)) four control points c_j..c_j+3 are active with the weights
+
+    B0 = (1 - u)^3 / 6,  B1 = (3u^3 - 6u^2 + 4) / 6,  B2 = (-3u^3 + 3u^2 + 3u + 1) / 6,
+    B3 = u^3 / 6,
+
+so x is twice continuously differentiable: q, qd and qdd of the skeleton (Eq. 1) and a, adot,
+addot of the activations (Eq. 8a) come from one set of control points, linearly. That makes
+every residual of the estimator touch four consecutive control points: the normal equations
+are banded (``normal_equations``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def basis(u: np.ndarray, dt: float) -> np.ndarray:
+    """Weights [P, 4 orders, 4 control points]: value and 1st-3rd time derivatives (1/s^k)
+    of the four control points active at local coordinates ``u`` [P] in [0, 1)."""
+    u = np.asarray(u, dtype=float)
+    u2, u3 = u * u, u * u * u
+    one = np.ones_like(u)
+    b0 = np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1, u3], -1)
+    b1 = np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3, 3 * u2], -1) / dt
+    b2 = np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2
+    b3 = np.stack([-6 * one, 18 * one, -18 * one, 6 * one], -1) / dt ** 3
+    return np.stack([b0, b1, b2, b3], 1) / 6.0
+
+
+@dataclass(frozen=True)
+class KnotGrid:
+    """Knots t_ref + j dt [s]; segment j uses control points j..j+3 (global indices)."""
+
+    t_ref: float
+    dt: float
+
+    def locate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(segment index [P] int, local coordinate u [P]) of instants t [P] (s)."""
+        x = (np.asarray(t, dtype=float) - self.t_ref) / self.dt
+        j = np.floor(x + 1e-9).astype(np.int64)
+        return j, np.clip(x - j, 0.0, 1.0)
+
+    def segment_of(self, t: float) -> int:
+        """Segment index containing instant t."""
+        return int(np.floor((t - self.t_ref) / self.dt + 1e-9))
+
+    def time(self, j: int | np.ndarray) -> np.ndarray | float:
+        """Start time(s) of segment(s) j."""
+        return self.t_ref + np.asarray(j) * self.dt
+
+
+def evaluate(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, orders: int = 3,
+             ) -> np.ndarray:
+    """Spline values [P, orders, k] at instants t from control points C [n, k] whose first
+    one has global index ``first``; orders = 1 (value), 2 (+ rate) or 3 (+ acceleration)."""
+    j, u = grid.locate(t)
+    B = basis(u, grid.dt)[:, :orders]
+    idx = (j - first)[:, None] + np.arange(4)[None, :]
+    if idx.min() < 0 or idx.max() >= C.shape[0]:
+        raise IndexError('instants outside the control points given')
+    return np.einsum('pok,pkv->pov', B, C[idx])
+
+
+def fit(t: np.ndarray, y: np.ndarray, first: int, n: int, grid: KnotGrid,
+        smoothing: float = 1e-6) -> np.ndarray:
+    """Least-squares control points [n, k] (global indices first..first+n-1) through samples
+    y [P, k] at t [P], with a small second-difference penalty so that control points no
+    sample reaches stay determined."""
+    j, u = grid.locate(t)
+    B = basis(u, grid.dt)[:, 0]
+    A = np.zeros((np.size(t), n))
+    rows = np.arange(np.size(t))
+    for k in range(4):
+        A[rows, j - first + k] = B[:, k]
+    D = np.diff(np.eye(n), 2, axis=0) * np.sqrt(smoothing * max(np.size(t), 1))
+    lhs = np.vstack([A, D])
+    rhs = np.vstack([np.asarray(y, dtype=float).reshape(np.size(t), -1),
+                     np.zeros((D.shape[0], np.asarray(y).reshape(np.size(t), -1).shape[1]))])
+    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]

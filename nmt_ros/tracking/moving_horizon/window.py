@@ -1,0 +1,383 @@
+"""The sliding window: spline control points, their data, Gauss-Newton steps, marginalisation.
+
+The window holds the control points of segments [first, first + n_seg) of the knot grid
+(control points first..first + n_seg + 2), the force plate's error parameters, the samples
+that fall in those segments, and the arrival cost (``normal_equations.Prior``) that
+summarises everything marginalised before.
+
+Linearisations are kept per segment (its Gauss-Newton block H, g, cost and the point z it was
+taken at, in arrays indexed by segment modulo a capacity). A step re-linearises only the
+segments asked for (the newest, where data just arrived, and a few older ones in turn) and
+uses the others' kept blocks as a quadratic model around their own points (first-order
+consistent, exact for the linear parts); the step is kept only if it lowers that cost.
+``drop_before`` marginalises the oldest segments into the prior, and the plate parameters
+get the process noise of the time that passed. All arithmetic is in data time: the result is
+a function of the samples alone.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nmt_ros.tracking.moving_horizon.normal_equations import (
+    NormalEquations,
+    Prior,
+    band_form,
+    diffuse,
+    marginalize,
+)
+from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NB, NV, NX
+from nmt_ros.tracking.moving_horizon.spline import KnotGrid, evaluate
+
+#: Levenberg damping metric: 1 / (typical step)^2 per variable, a trust region in natural
+#: units (0.01 rad, 1 mm, 0.05 of activation, 20 N, 2 N m; plate: 5 N, 1 N m, 0.01 of gain,
+#: 1 mm of centre of pressure).
+_STEP = np.empty(NV)
+_STEP[LAYOUT['q']] = [0.01] * 4 + [0.001] * 2
+_STEP[LAYOUT['a']] = 0.05
+_STEP[LAYOUT['s']] = [20.0, 20.0, 2.0]
+_STEP_PLATE = np.array([5.0, 5.0, 1.0, 0.01, 0.01, 0.001])
+
+
+@dataclass
+class Samples:
+    """Time-ordered samples of one stream inside the window: t [n] s, y [n, k]."""
+
+    t: np.ndarray
+    y: np.ndarray
+
+    @classmethod
+    def empty(cls, k: int) -> Samples:
+        return cls(np.zeros(0), np.zeros((0, k)))
+
+    def append(self, t: np.ndarray, y: np.ndarray) -> None:
+        self.t = np.concatenate([self.t, t])
+        self.y = np.concatenate([self.y, y.reshape(len(t), -1)])
+
+    def drop_before(self, t: float) -> None:
+        keep = self.t >= t - 1e-12
+        self.t, self.y = self.t[keep], self.y[keep]
+
+
+@dataclass
+class Linearisation:
+    """Gauss-Newton blocks of some segments: H [S, NB + NX]^2, g = -J'r [S, NB + NX], cost
+    1/2 r'r [S], data rows [S, 4] (angle cost, angle rows, wrench cost, wrench rows) and the
+    points z [S, NB + NX] they were taken at."""
+
+    segments: np.ndarray
+    H: np.ndarray
+    g: np.ndarray
+    cost: np.ndarray
+    rows: np.ndarray
+    z: np.ndarray
+
+
+class SlidingWindow:
+    """State of the estimator's window (see the module docstring)."""
+
+    def __init__(self, grid: KnotGrid, first: int, C: np.ndarray, plate: np.ndarray,
+                 kernel: object, plate_drift: np.ndarray, capacity: int) -> None:
+        self.grid = grid
+        self.first = first
+        self.C = np.asarray(C, dtype=float).copy()
+        self.plate = np.asarray(plate, dtype=float).copy()
+        self.kernel = kernel
+        self.plate_drift = np.asarray(plate_drift, dtype=float)   # variance per second [NX]
+        self.angles = Samples.empty(4)
+        self.wrench = Samples.empty(3)
+        self.prior: Prior | None = None
+        # kept linearisations, segment k at position k - base (contiguous for the window;
+        # compacted when the buffer's end is reached)
+        n = NB + NX
+        self.cap = capacity
+        size = 2 * capacity
+        self.base = first
+        self.lin_seg = np.full(size, -1, dtype=np.int64)
+        self.lin_H = np.zeros((size, n, n))
+        self.lin_band = np.zeros((size, NB, NB))     # upper band form of H[:NB, :NB]
+        self.lin_g = np.zeros((size, n))
+        self.lin_z = np.zeros((size, n))
+        self.lin_cost = np.zeros(size)
+        self.lin_rows = np.zeros((size, 4))
+
+    # ------------------------------------------------------------------ shape
+    @property
+    def n_seg(self) -> int:
+        return self.C.shape[0] - 3
+
+    @property
+    def last(self) -> int:
+        """Global index of the last segment."""
+        return self.first + self.n_seg - 1
+
+    @property
+    def segments(self) -> np.ndarray:
+        return np.arange(self.first, self.first + self.n_seg)
+
+    @property
+    def t_start(self) -> float:
+        return float(self.grid.time(self.first))
+
+    @property
+    def t_end(self) -> float:
+        return float(self.grid.time(self.first + self.n_seg))
+
+    def points_of(self, segments: np.ndarray, C: np.ndarray, plate: np.ndarray) -> np.ndarray:
+        """z [S, NB + NX] of ``segments`` (global): their four control points and the plate."""
+        loc = np.asarray(segments) - self.first
+        c = C.reshape(-1)[loc[:, None] * NV + np.arange(NB)[None, :]]
+        return np.concatenate([c, np.broadcast_to(plate, (c.shape[0], NX))], axis=1)
+
+    def extend(self, last_segment: int) -> None:
+        """Append segments up to ``last_segment`` (global): new control points continue q at
+        its last rate and hold a and s."""
+        add = last_segment - self.last
+        if add <= 0:
+            return
+        if self.n_seg + add >= self.cap:
+            raise ValueError(f'the window would exceed its capacity of {self.cap} segments')
+        if last_segment - self.base >= self.lin_seg.size:     # compact the kept blocks
+            live = slice(self.first - self.base, self.last + 1 - self.base)
+            n_live = self.n_seg
+            for arr in (self.lin_seg, self.lin_H, self.lin_band, self.lin_g, self.lin_z,
+                        self.lin_cost, self.lin_rows):
+                arr[:n_live] = arr[live].copy()
+            self.lin_seg[n_live:] = -1
+            self.base = self.first
+        C = list(self.C)
+        q = LAYOUT['q']
+        for _ in range(add):
+            new = C[-1].copy()
+            new[q] = 2 * C[-1][q] - C[-2][q]
+            C.append(new)
+        self.C = np.array(C)
+
+    def add_samples(self, angles: tuple[np.ndarray, np.ndarray],
+                    wrench: tuple[np.ndarray, np.ndarray]) -> None:
+        if len(angles[0]):
+            self.angles.append(*angles)
+        if len(wrench[0]):
+            self.wrench.append(*wrench)
+
+    # ------------------------------------------------------------------ linearise
+    def _pack(self, samples: Samples, segments: np.ndarray, capacity: int, k: int,
+              ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Samples of ``segments`` padded to ``capacity`` per segment: batches of (slot [S'],
+        u [S', cap], y [S', cap k], mask [S', cap k]), the first covering every segment and
+        further ones the samples beyond the capacity (rarely: a faster stream)."""
+        S = segments.size
+        lo = np.searchsorted(samples.t, self.grid.time(segments) - 1e-12)
+        hi = np.searchsorted(samples.t, self.grid.time(segments + 1) - 1e-12)
+        count = hi - lo
+        batches = []
+        offset = 0
+        while offset == 0 or (count > offset).any():
+            n = np.clip(count - offset, 0, capacity)
+            slot = np.arange(S) if offset == 0 else np.nonzero(n)[0]
+            col = np.arange(capacity)[None, :]
+            take = col < n[slot][:, None]
+            src = np.where(take, (lo[slot] + offset)[:, None] + col, 0)
+            u = np.zeros((slot.size, capacity))
+            y = np.zeros((slot.size, capacity, k))
+            m = np.zeros((slot.size, capacity, k))
+            if samples.t.size:
+                t0 = self.grid.time(segments[slot])[:, None]
+                u[take] = ((samples.t[src] - t0) / self.grid.dt)[take]
+                vals = samples.y[src]
+                ok = np.isfinite(vals) & take[:, :, None]
+                y[ok] = vals[ok]
+                m[ok] = 1.0
+            batches.append((slot, u, y.reshape(slot.size, -1), m.reshape(slot.size, -1)))
+            offset += capacity
+        return batches
+
+    def evaluate(self, segments: np.ndarray, C: np.ndarray, plate: np.ndarray,
+                 dynamics_scale: float = 1.0) -> Linearisation:
+        """Linearise the residuals of ``segments`` (global) at (C, plate) with the compiled
+        kernel (``segment_kernel``): one batched call (more for samples over capacity)."""
+        segments = np.asarray(segments, dtype=np.int64)
+        kern = self.kernel
+        S = segments.size
+        ang = self._pack(self.angles, segments, kern.angle_capacity, 4)
+        wr = self._pack(self.wrench, segments, kern.wrench_capacity, 3)
+        z = self.points_of(segments, C, plate)
+        n = NB + NX
+        H, g = np.zeros((S, n, n)), np.zeros((S, n))
+        cost, rows = np.zeros(S), np.zeros((S, 4))
+        for call in range(max(len(ang), len(wr))):
+            parts = []
+            slots = np.unique(np.concatenate([b[call][0] for b in (ang, wr) if call < len(b)]))
+            for batches, cap, k in ((ang, kern.angle_capacity, 4), (wr, kern.wrench_capacity, 3)):
+                u = np.zeros((slots.size, cap))
+                y, m = np.zeros((slots.size, cap * k)), np.zeros((slots.size, cap * k))
+                if call < len(batches):
+                    bs, bu, by, bm = batches[call]
+                    where = np.searchsorted(slots, bs)
+                    u[where], y[where], m[where] = bu, by, bm
+                parts += [u, y, m]
+            ones = np.ones((slots.size, 1))
+            out = kern(z[slots, :NB], z[slots, NB:], *parts, dynamics_scale * ones,
+                       ones * (call == 0))
+            H[slots] += out[0]
+            g[slots] += out[1]
+            cost[slots] += out[2][:, 0]
+            rows[slots] += np.column_stack([o[:, 0] for o in out[3:7]])
+        return Linearisation(segments, H, g, cost, rows, z)
+
+    def keep(self, lin: Linearisation) -> None:
+        slot = lin.segments - self.base
+        self.lin_seg[slot] = lin.segments
+        self.lin_H[slot] = lin.H
+        self.lin_band[slot] = band_form(lin.H[:, :NB, :NB])
+        self.lin_g[slot] = lin.g
+        self.lin_cost[slot] = lin.cost
+        self.lin_rows[slot] = lin.rows
+        self.lin_z[slot] = lin.z
+
+    def relinearise(self, segments: np.ndarray, dynamics_scale: float = 1.0) -> None:
+        self.keep(self.evaluate(segments, self.C, self.plate, dynamics_scale))
+
+    def rows(self, segments: np.ndarray) -> np.ndarray:
+        """Kept data rows [S, 4] of ``segments`` (see ``Linearisation``)."""
+        return self.lin_rows[np.asarray(segments) - self.base]
+
+    def _prior_at(self, C: np.ndarray, plate: np.ndarray,
+                  ) -> tuple[float, np.ndarray, np.ndarray] | None:
+        p = self.prior
+        if p is None:
+            return None
+        k = p.first - self.first
+        z = np.concatenate([C[k:k + p.n_ctrl].ravel(), plate])
+        d = z - p.lin
+        H, g = p.shifted(z)
+        return 0.5 * float(d @ p.H @ d) - float(p.g @ d), H, g
+
+    def _models(self, C: np.ndarray, plate: np.ndarray,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every window segment's kept model at (C, plate): (segments [S], H [S, ...],
+        cost [S], -gradient [S, NB + NX])."""
+        segs = self.segments
+        slot = slice(self.first - self.base, self.last + 1 - self.base)
+        if (self.lin_seg[slot] != segs).any():
+            missing = segs[self.lin_seg[slot] != segs]
+            self.keep(self.evaluate(missing, self.C, self.plate))
+        H = self.lin_H[slot]
+        d = self.points_of(segs, C, plate) - self.lin_z[slot]
+        Hd = np.einsum('sij,sj->si', H, d)
+        g = self.lin_g[slot]
+        cost = self.lin_cost[slot] - np.einsum('si,si->s', g, d) + 0.5 * np.einsum(
+            'si,si->s', d, Hd)
+        return segs, H, cost, g - Hd
+
+    def model_cost(self, C: np.ndarray, plate: np.ndarray,
+                   exact: Linearisation | None = None) -> float:
+        """Cost of (C, plate): kept segment models, with ``exact`` ones replacing them."""
+        segs, _, cost, _ = self._models(C, plate)
+        if exact is not None:
+            cost[exact.segments - self.first] = exact.cost
+        prior = self._prior_at(C, plate)
+        return float(cost.sum()) + (prior[0] if prior is not None else 0.0)
+
+    # ------------------------------------------------------------------ solve
+    def normal_equations(self) -> NormalEquations:
+        ne = NormalEquations(self.C.shape[0], NV, NX)
+        segs, H, _, g = self._models(self.C, self.plate)
+        band = self.lin_band[self.first - self.base:self.last + 1 - self.base]
+        ne.add_segments(segs - self.first, H, g, band)
+        prior = self._prior_at(self.C, self.plate)
+        if prior is not None:
+            ne.add_dense(self.prior.first - self.first, self.prior.n_ctrl, prior[1], prior[2])
+        return ne
+
+    def step_metric(self) -> np.ndarray:
+        """Levenberg damping metric [n_ctrl NV + NX] (``_STEP``)."""
+        return 1.0 / np.concatenate([np.tile(_STEP, self.C.shape[0]), _STEP_PLATE]) ** 2
+
+    def step(self, segments: np.ndarray, damping: float, dynamics_scale: float = 1.0,
+             check: bool = True) -> tuple[float, float]:
+        """Re-linearise ``segments``, take one damped Gauss-Newton step on the whole window
+        and (``check``) keep it only if it lowers the cost. Returns (cost before, after)."""
+        self.relinearise(segments, dynamics_scale)
+        before = self.model_cost(self.C, self.plate)
+        ne = self.normal_equations()
+        dz = ne.solve(damping * self.step_metric())
+        C_new = self.C + dz[:-NX].reshape(self.C.shape)
+        plate_new = self.plate + dz[-NX:]
+        if not check:
+            self.C, self.plate = C_new, plate_new
+            return before, before - 0.5 * float(dz @ np.concatenate([ne.g, ne.gx]))
+        exact = self.evaluate(segments, C_new, plate_new, dynamics_scale)
+        after = self.model_cost(C_new, plate_new, exact)
+        if np.isfinite(after) and after < before:
+            self.C, self.plate = C_new, plate_new
+            self.keep(exact)
+        return before, after
+
+    def solve(self, segments: np.ndarray, iterations: int, damping: float,
+              dynamics_scale: float = 1.0, tol: float = 1e-3, min_damping: float = 1e-6,
+              check: bool = True) -> float:
+        """Levenberg-Marquardt iterations (damping halved after a step that lowers the
+        cost, x4 after one that does not); returns the final damping."""
+        for _ in range(iterations):
+            before, after = self.step(segments, damping, dynamics_scale, check)
+            if after < before:
+                damping = max(damping / 2.0, min_damping)
+                if before - after < tol * before:
+                    break
+            else:
+                damping = min(damping * 4.0, 1e6)
+        return damping
+
+    # ------------------------------------------------------------------ marginalise
+    def start_prior(self, sd_plate: np.ndarray) -> None:
+        """A prior N(0, sd_plate^2) on the plate parameters (at a cold start)."""
+        n = 3 * NV + NX
+        H = np.zeros((n, n))
+        H[3 * NV:, 3 * NV:] = np.diag(1.0 / np.asarray(sd_plate, dtype=float) ** 2)
+        lin = np.concatenate([self.C[:3].ravel(), np.zeros(NX)])
+        self.prior = Prior(first=self.first, n_ctrl=3, H=H, g=np.zeros(n), lin=lin)
+
+    def drop_before(self, segment: int) -> None:
+        """Marginalise the segments before ``segment`` (global) into the arrival cost; the
+        plate parameters then get the drift of the time that passed."""
+        m = segment - self.first
+        if m <= 0:
+            return
+        segs, Hs, _, gs = self._models(self.C, self.plate)
+        n = (m + 3) * NV
+        H = np.zeros((n + NX, n + NX))
+        g = np.zeros(n + NX)
+        for s in range(m):
+            lo = s * NV
+            H[lo:lo + NB, lo:lo + NB] += Hs[s, :NB, :NB]
+            H[lo:lo + NB, n:] += Hs[s, :NB, NB:]
+            H[n:, lo:lo + NB] += Hs[s, NB:, :NB]
+            H[n:, n:] += Hs[s, NB:, NB:]
+            g[lo:lo + NB] += gs[s, :NB]
+            g[n:] += gs[s, NB:]
+        prior = self._prior_at(self.C, self.plate)
+        if prior is not None:
+            k = (self.prior.first - self.first) * NV
+            w = self.prior.n_ctrl * NV
+            H[k:k + w, k:k + w] += prior[1][:w, :w]
+            H[k:k + w, n:] += prior[1][:w, w:]
+            H[n:, k:k + w] += prior[1][w:, :w]
+            H[n:, n:] += prior[1][w:, w:]
+            g[k:k + w] += prior[2][:w]
+            g[n:] += prior[2][w:]
+        Hp, gp = marginalize(H, g, m * NV)
+        Hp, gp = diffuse(Hp, gp, 3 * NV + np.arange(NX), self.plate_drift * m * self.grid.dt)
+        lin = np.concatenate([self.C[m:m + 3].ravel(), self.plate])
+        self.prior = Prior(first=segment, n_ctrl=3, H=Hp, g=gp, lin=lin)
+        self.lin_seg[segs[:m] - self.base] = -1
+        self.C = self.C[m:]
+        self.first = segment
+        self.angles.drop_before(self.t_start)
+        self.wrench.drop_before(self.t_start)
+
+    # ------------------------------------------------------------------ outputs
+    def values(self, t: np.ndarray, orders: int = 3) -> np.ndarray:
+        """Spline values [P, orders, NV] at instants inside the window."""
+        return evaluate(self.C, self.first, self.grid, np.asarray(t, dtype=float), orders)
