@@ -96,7 +96,8 @@ class MovingHorizonEstimator:
             sd_height=st.contact_height_sd_m, sd_slip=st.contact_slip_sd_m_s,
             full_load=st.contact_full_load_bw * bw, stiffness=float(model.p.contact.k_y),
             w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
-            tau_act=m.tau_act, tau_deact=m.tau_deact))
+            tau_act=m.tau_act, tau_deact=m.tau_deact,
+            wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free))
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         self.plate_drift = np.asarray(st.plate_drift_sd, dtype=float) ** 2
@@ -336,6 +337,13 @@ class MovingHorizonEstimator:
         w = SlidingWindow(self.grid, first, C, plate, self.kernel, self.plate_drift, capacity)
         w.add_samples((ta[sel_a], ya[sel_a]), (tw[sel_w], yw[sel_w]))
         w.start_prior(self.plate_sd)
+        if st.arrival_noise_sd is not None:
+            noise = np.empty(NV)
+            noise[LAYOUT['q']] = np.r_[np.radians([st.arrival_noise_sd[0]] * 4),
+                                       [st.arrival_noise_sd[1]] * 2]
+            noise[LAYOUT['a']] = st.arrival_noise_sd[2]
+            noise[LAYOUT['s']] = st.arrival_noise_sd[3]
+            w.arrival_noise = noise ** 2
         segments = np.arange(w.first, w.last + 1)
         per_stage = max(1, st.start_iterations // (len(st.start_dynamics_sd) + 1))
         damping = st.damping

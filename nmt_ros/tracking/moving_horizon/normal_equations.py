@@ -144,7 +144,12 @@ def diffuse(H: np.ndarray, g: np.ndarray, idx: np.ndarray, variance: np.ndarray,
     """The prior (H, g) after zero-mean noise of ``variance`` is added to variables ``idx``:
     H' = (H^-1 + E V E')^-1 = H - H E (V^-1 + E' H E)^-1 E' H (no inverse of H, which may
     be singular), and g' = H' H^-1 g = g - H E (V^-1 + E' H E)^-1 E' g (the mean kept)."""
+    variance = np.asarray(variance, dtype=float)
+    idx = np.asarray(idx)[variance > 0]
+    variance = variance[variance > 0]
+    if idx.size == 0:
+        return H, g
     HE = H[:, idx]
-    K = np.linalg.inv(np.diag(1.0 / np.asarray(variance, dtype=float)) + HE[idx])
+    K = np.linalg.inv(np.diag(1.0 / variance) + HE[idx])
     H2 = H - HE @ K @ HE.T
     return 0.5 * (H2 + H2.T), g - HE @ (K @ g[idx])

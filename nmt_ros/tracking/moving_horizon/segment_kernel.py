@@ -49,6 +49,8 @@ class KernelSpec:
     rho: float
     tau_act: float
     tau_deact: float
+    wrench_accel_sd: tuple        # [3] prior SD of the wrench's 2nd derivative [N/s^2 sqrt(s)]
+    share_free: bool = False      # differentiate the contact points' load shares
 
 
 def _basis(u: ca.SX, dt: float) -> list[list[ca.SX]]:
@@ -137,7 +139,7 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         ok = ca.logic_and(fy > 1.0, ca.fabs(span) > 1e-3)
         toe = ca.if_else(ok, ca.fmin(ca.fmax((mz - m_heel) / ca.if_else(ok, span, 1.0), 0.0),
                                      1.0), 0.5)
-        share = hold(ca.vertcat(1 - toe, toe), 'share')
+        share = ca.vertcat(1 - toe, toe) if s.share_free else hold(ca.vertcat(1 - toe, toe), 'share')
         load_now = ca.fmax(ca.vertcat(1 - toe, toe) * fy, 0.0)
         weight = hold(ca.sqrt(ca.fmin(load_now / s.full_load, 1.0)), 'weight')
         load = share * fy
@@ -154,6 +156,8 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         rows.append(colloc * quad * ca.vertcat(np.sqrt(s.w_u) * u, np.sqrt(s.w_du) * udot,
                                                np.sqrt(s.rho) * over_u,
                                                np.sqrt(s.rho) * over_a))
+        # the ground wrench is smooth (a smoothing-spline prior on its 2nd derivative)
+        rows.append(colloc * quad * at(g_u, 's', 2) / ca.DM(s.wrench_accel_sd))
     z = ca.vertcat(c, p)
     r_all = ca.vertcat(*rows)
     J = ca.jacobian(r_all, z)

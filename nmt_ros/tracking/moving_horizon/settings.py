@@ -44,13 +44,21 @@ class MovingHorizonSettings:
     contact_height_sd_m: float = 0.002
     contact_slip_sd_m_s: float = 0.02
     contact_full_load_bw: float = 0.05  # a point with this share of body weight is fully held
+    share_free: bool = False           # differentiate the load shares (else held, IRLS)
+    # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
+    # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
+    wrench_cutoff_hz: float = 40.0
     excitation_weight: float = 1.0     # w_u: cost w_u int |u|^2 dt [1/s]
     excitation_rate_weight: float = 0.1  # w_du: cost w_du int |du/dt|^2 dt [s]
     bound_weight: float = 1e4          # penalty on excitations outside [0, 1] (per unit^2 s)
     # force-plate error model (offsets b, gains eps, COP offset d): prior SD at a start and
     # drift (random walk) per second
-    plate_sd: tuple[float, ...] = (20.0, 20.0, 3.0, 0.05, 0.05, 0.03)   # N, N, N m, -, -, m
-    plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.5, 0.005, 0.005, 0.002)  # per sqrt(s)
+    plate_sd: tuple[float, ...] = (20.0, 20.0, 3.0, 0.05, 0.05, 0.05)   # N, N, N m, -, -, m
+    plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.5, 0.02, 0.02, 0.03)  # per sqrt(s)
+    # process noise on the arrival state (the control points the prior covers), per sqrt(s):
+    # angles [deg], positions [m], activations, wrench [N] (None: off). It keeps the prior
+    # from growing overconfident in what the window's own data can tell
+    arrival_noise_sd: tuple[float, float, float, float] | None = (2.0, 0.002, 0.05, 50.0)
     # --- numerics
     iterations: int = 1                # Gauss-Newton iterations per update (at most)
     check_steps: bool = False          # evaluate each step and keep it only if the cost fell
@@ -78,6 +86,13 @@ class MovingHorizonSettings:
         """[3] N, N, N m."""
         f = self.force_sd_bw * body_weight
         return np.array([f, f, f * self.moment_lever_m])
+
+    def wrench_accel_sd(self, body_weight: float) -> np.ndarray:
+        """Prior SD [3] of the wrench's 2nd derivative (N/s^2 per sqrt(s)): the smoothing
+        spline whose cut-off is ``wrench_cutoff_hz`` for samples at ``wrench_rate_hz`` of
+        the wrench noise: lambda = f_s / (sigma^2 (2 pi f_c)^4), sd = 1 / sqrt(lambda)."""
+        omega = 2 * np.pi * self.wrench_cutoff_hz
+        return self.wrench_sd(body_weight) * omega ** 2 / np.sqrt(self.wrench_rate_hz)
 
     def validate(self) -> None:
         if self.window_s < self.lag_s + 1.0 / self.update_rate_hz:

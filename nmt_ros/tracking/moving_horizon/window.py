@@ -88,6 +88,7 @@ class SlidingWindow:
         self.angles = Samples.empty(4)
         self.wrench = Samples.empty(3)
         self.prior: Prior | None = None
+        self.arrival_noise: np.ndarray | None = None   # variance per second [NV]
         # kept linearisations, segment k at position k - base (contiguous for the window;
         # compacted when the buffer's end is reached)
         n = NB + NX
@@ -369,6 +370,9 @@ class SlidingWindow:
             g[n:] += prior[2][w:]
         Hp, gp = marginalize(H, g, m * NV)
         Hp, gp = diffuse(Hp, gp, 3 * NV + np.arange(NX), self.plate_drift * m * self.grid.dt)
+        if self.arrival_noise is not None:   # the arrival state's own process noise
+            Hp, gp = diffuse(Hp, gp, np.arange(3 * NV), np.tile(self.arrival_noise, 3)
+                             * m * self.grid.dt)
         lin = np.concatenate([self.C[m:m + 3].ravel(), self.plate])
         self.prior = Prior(first=segment, n_ctrl=3, H=Hp, g=gp, lin=lin)
         self.lin_seg[segs[:m] - self.base] = -1
