@@ -141,7 +141,7 @@ def padded_bag(bag: Path, pad_s: float, out: Path) -> Path:
     """The bag's observations after ``pad_s`` of quiet standing (the first sample held), as a
     lab trial starts: the tracker's start-up (initial state) is then over before the jump."""
     from nmt_ros.io.trial_bag import write_trial_bag
-    from nmt_ros.study.trial import Observations
+    from nmt_ros.records import Observations
 
     obs = read_observations(bag)
     na, nw = int(round(pad_s * 120)), int(round(pad_s * 1080))

@@ -118,7 +118,7 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
 
 def _observations():
     from nmt_ros.io.trial_bag import read_observations
-    from nmt_ros.study.trial import TRIAL_EPOCH_NS
+    from nmt_ros.records import TRIAL_EPOCH_NS
 
     obs = read_observations(BAG)
     sa = TRIAL_EPOCH_NS + np.rint(obs.t_angles * 1e9).astype(np.int64)
@@ -300,7 +300,7 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
     from nmt_ros.model.jumper import default_model
     from nmt_ros.nodes._ros import NmtNode, data_qos
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
-    from nmt_ros.study.trial import TRIAL_EPOCH_NS
+    from nmt_ros.records import TRIAL_EPOCH_NS
     from nmt_ros.tracking.conditioning import condition
     from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
 

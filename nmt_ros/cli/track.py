@@ -60,7 +60,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
                                           window_length_s=window, stage2_k_r=stage2_k_r),
                   progress=say)
     out.mkdir(parents=True, exist_ok=True)
-    write_estimates_bag(out / 'estimates', model, run, obs.info['epoch_ns'])
+    write_estimates_bag(out / 'estimates', model, run.estimates(), obs.info['epoch_ns'])
     say(f'estimates: {out / "estimates"}')
     from nmt_ros.study.opensim_results import write_opensim_estimates
 

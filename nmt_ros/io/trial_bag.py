@@ -29,8 +29,9 @@ import numpy as np
 from msg_adapters.joint_state import joint_states_from_arrays
 from msg_adapters.wrench import wrenches_from_arrays
 from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
+from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
-from nmt_ros.study.trial import TRIAL_EPOCH_NS, Observations, Truth
+from nmt_ros.records import TRIAL_EPOCH_NS, Observations, TrialEstimates, Truth
 
 ANGLES_TOPIC = '/mocap/segment_angles'
 WRENCH_TOPIC = '/force_plate/wrench'
@@ -183,11 +184,11 @@ def read_truth(path: str | os.PathLike) -> Truth:
         liftoff_s=float(custom['nmt.liftoff_s']), info={'epoch_ns': epoch_ns})
 
 
-def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS,
-                      ) -> list[tuple[str, int, object]]:
-    """The /nmt/* estimate topics of a batch NMT run, stamped with observation time."""
+def estimate_messages(model: JumperModel, estimates: TrialEstimates,
+                      epoch_ns: int = TRIAL_EPOCH_NS) -> list[tuple[str, int, object]]:
+    """The /nmt/* estimate topics of a batch run, stamped with observation time."""
     out = []
-    skt = run.skt
+    skt = estimates.stage1
     st = to_stamps_ns(skt.t, epoch_ns)
     theta, = model.batch(model.joint_angles, skt.q)
     theta_dot, = model.batch(model.joint_angles, skt.qd)
@@ -199,12 +200,11 @@ def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS
             st, SEGMENTS, position=skt.q[:, :4], velocity=skt.qd[:, :4])),
         ('/nmt/skeletal/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, f, tq)),
     ]
-    ivd = run.ivd
-    si = to_stamps_ns(ivd.t, epoch_ns)
+    si = to_stamps_ns(estimates.ivd_t, epoch_ns)
     out.append(('/nmt/ivd/joint_torques', si, joint_states_from_arrays(
-        si, JOINTS, effort=ivd.tau)))
-    if run.stage2 is not None:
-        s2 = run.stage2
+        si, JOINTS, effort=estimates.ivd_tau)))
+    if estimates.muscles is not None:
+        s2 = estimates.muscles
         ss = to_stamps_ns(s2.t, epoch_ns)
         keep = np.searchsorted(skt.t, s2.t - 1e-12)   # Stage 2 runs on the Stage-1 grid
         th = theta[keep]
@@ -215,14 +215,14 @@ def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS
     return _time_ordered(out)
 
 
-def write_estimates_bag(path: str | os.PathLike, model: object, run: object,
+def write_estimates_bag(path: str | os.PathLike, model: JumperModel, estimates: TrialEstimates,
                         epoch_ns: int = TRIAL_EPOCH_NS, custom_data: dict | None = None,
                         ) -> BagInfo:
-    """A batch NMT run's estimates as a bag folder (topics of ``estimate_messages``)."""
+    """A batch run's estimates as a bag folder (topics of ``estimate_messages``)."""
     data = {'nmt.trial_epoch_ns': str(epoch_ns)}
     data.update({k: v if isinstance(v, str) else json.dumps(v)
                  for k, v in (custom_data or {}).items()})
     with BagWriter(path, custom_data=data, flush_period_s=None) as bag:
-        for topic, stamp, msg in estimate_messages(model, run, epoch_ns):
+        for topic, stamp, msg in estimate_messages(model, estimates, epoch_ns):
             bag.write(topic, msg, stamp, stamp)
     return bag_info(path)

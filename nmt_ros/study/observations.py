@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from nmt_ros.study.trial import Observations, Truth
+from nmt_ros.records import Observations, Truth
 
 
 @dataclass(frozen=True)

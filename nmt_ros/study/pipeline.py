@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.records import MuscleEstimates, Observations, SKTResult, TrialEstimates
 from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
-from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
 from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
 from nmt_ros.tracking.neuromuscular_tracker import (
@@ -23,7 +23,6 @@ from nmt_ros.tracking.neuromuscular_tracker import (
     load_stage2_settings,
 )
 from nmt_ros.tracking.skeletal_tracker import (
-    SKTResult,
     SKTSettings,
     initial_state,
     reference_arrays,
@@ -67,6 +66,13 @@ class NMTRun:
     @property
     def ok(self) -> bool:
         return self.skt.ok and self.stage2 is not None
+
+    def estimates(self) -> TrialEstimates:
+        """The run's estimates as the estimates bag carries them."""
+        muscles = (None if self.stage2 is None else MuscleEstimates(
+            t=self.stage2.t, f=self.stage2.f, a=self.stage2.a, u=self.stage2.u))
+        return TrialEstimates(stage1=self.skt, ivd_t=self.ivd.t, ivd_tau=self.ivd.tau,
+                              muscles=muscles)
 
 
 def joint_kinematics(model: JumperModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,

@@ -19,9 +19,9 @@ import numpy as np
 from nmt_ros.io.trial_bag import read_observations, read_truth
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS
+from nmt_ros.records import Truth
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.study.pipeline import NMTSettings, joint_kinematics, run_nmt
-from nmt_ros.study.trial import Truth
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
 from nmt_ros.tracking.skeletal_tracker import SKTSettings, track

@@ -40,8 +40,8 @@ import casadi as ca
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.study.trial import Observations
-from nmt_ros.tracking.skeletal_tracker import SKTResult, liftoff_time
+from nmt_ros.records import Observations, SKTResult
+from nmt_ros.tracking.skeletal_tracker import liftoff_time
 
 _QDD_SCALE = 100.0   # rad/s^2 or m/s^2 per unit of an acceleration variable
 _TAU_SCALE = 100.0   # N m per unit of a torque variable

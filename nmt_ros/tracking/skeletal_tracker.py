@@ -37,7 +37,7 @@ do); the live node restarts a trial after a loss of control.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import time
 
 import casadi as ca
@@ -45,6 +45,7 @@ import numpy as np
 
 from nmt_ros.model.integrate import rk4_step
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.records import SKTResult
 from nmt_ros.tracking.conditioning import ConditionedObservations
 
 N_REF = 18  # theta(4), theta_dot(4), theta_ddot(4), s(3), s_dot(3)
@@ -169,30 +170,6 @@ class SKTState:
     qd: np.ndarray
     b: float
     x0: np.ndarray
-
-
-@dataclass
-class SKTResult:
-    """Stage 1 output on the output grid (the force-plate samples)."""
-
-    t: np.ndarray            # [n] s
-    q: np.ndarray            # [n, 6]
-    qd: np.ndarray           # [n, 6]
-    qdd: np.ndarray          # [n, 6]
-    tau: np.ndarray          # [n, 3] joint torques (N m): ankle, knee, hip
-    s: np.ndarray            # [n, 3] synthesised ground wrench
-    bias: np.ndarray         # [n] moment-bias estimate (N m)
-    residual: np.ndarray     # [n, 7] normalised least-squares residual
-    x0: np.ndarray
-    status: str = 'ok'       # 'ok' | 'lost_control'
-    events: list = field(default_factory=list)
-    cpu_s: float = 0.0
-    liftoff_s: float = float('nan')
-    muscles: dict | None = None  # muscle-driven Stage 1 only: {'a', 'u', 'f'} [n, 9]
-
-    @property
-    def ok(self) -> bool:
-        return self.status == 'ok'
 
 
 def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Function:
