@@ -48,10 +48,11 @@ from mcap.writer import CompressionType, Writer
 import numpy as np
 import yaml
 
+from msg_adapters.cdr_arrays import decode_joint_states, decode_wrenches
+from msg_adapters.series import JointStateSeries, WrenchSeries
+
 from . import msgdefs
-from .cdr_arrays import decode_joint_states, decode_wrenches
 from .qos import OBSERVATION_QOS, OfferedQos, as_qos_list, parse_qos_list, qos_list_to_yaml
-from .series import JointStateSeries, WrenchSeries
 
 METADATA_FILENAME = 'metadata.yaml'
 METADATA_VERSION = 9
@@ -580,7 +581,7 @@ def read_bag(path: str | os.PathLike,
 def read_arrays(path: str | os.PathLike, topic: str) -> JointStateSeries | WrenchSeries:
     """All messages of one JointState or WrenchStamped topic as stacked arrays.
 
-    Decoding is vectorised over messages that share a layout (``nmt_ros.io.cdr_arrays``).
+    Decoding is vectorised over messages that share a layout (``msg_adapters.cdr_arrays``).
     """
     blobs: list[bytes] = []
     log_times: list[int] = []
