@@ -30,21 +30,23 @@ from nmt_ros.model.parameters import JOINTS, MUSCLES
 from nmt_ros.nodes._core import ERROR, WARN, Sample
 from nmt_ros.nodes._ros import TrackerNode, run_node
 from nmt_ros.nodes._streams import Stage2Output, Stage2Runner
+from nmt_ros.topics import (
+    MUSCLE_ACTIVATIONS,
+    MUSCLE_EXCITATIONS,
+    MUSCLE_FORCES,
+    MUSCLE_OUTPUTS,
+    SKELETAL_JOINT_TORQUES,
+)
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
 
 NODE_NAME = 'muscle_tracker'
-TORQUES_TOPIC = '/nmt/skeletal/joint_torques'
-FORCES_TOPIC = '/nmt/muscle/forces'
-ACTIVATIONS_TOPIC = '/nmt/muscle/activations'
-EXCITATIONS_TOPIC = '/nmt/muscle/excitations'
-OUTPUT_TOPICS = (FORCES_TOPIC, ACTIVATIONS_TOPIC, EXCITATIONS_TOPIC)
 
 
 class MuscleTrackerNode(TrackerNode):
     """Stage 2 as a node (see the module docstring)."""
 
-    INPUTS = {TORQUES_TOPIC: JointState}
-    OUTPUTS = dict.fromkeys(OUTPUT_TOPICS, JointState)
+    INPUTS = {SKELETAL_JOINT_TORQUES: JointState}
+    OUTPUTS = dict.fromkeys(MUSCLE_OUTPUTS, JointState)
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -71,7 +73,7 @@ class MuscleTrackerNode(TrackerNode):
             self.model, load_stage2_settings(saturation=self.saturation))
         self.runner = Stage2Runner(self.model, self.tracker, self.window_length_s, stride,
                                    self.input_rate_hz)
-        self.gates = self.stream_gates({TORQUES_TOPIC: 1 / self.input_rate_hz})
+        self.gates = self.stream_gates({SKELETAL_JOINT_TORQUES: 1 / self.input_rate_hz})
         self.received_at: dict[int, float] = {}
         self.create_timer(self.process_period_s, self.process)
         self.listen()
@@ -125,10 +127,10 @@ class MuscleTrackerNode(TrackerNode):
             return
         stamps = out.stamp_ns
         self.publish_batches(stamps, {
-            FORCES_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.l_mt,
+            MUSCLE_FORCES: joint_states_from_arrays(stamps, MUSCLES, position=out.l_mt,
                                                    velocity=out.v_mt, effort=out.f),
-            ACTIVATIONS_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.a),
-            EXCITATIONS_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.u),
+            MUSCLE_ACTIVATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.a),
+            MUSCLE_EXCITATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.u),
         })
         now = time.monotonic()
         for s in stamps.tolist():

@@ -37,25 +37,27 @@ from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.nodes._core import ERROR, Sample, TrialClock
 from nmt_ros.nodes._ros import TrackerNode, run_node
 from nmt_ros.nodes._streams import Stage1Output, Stage1Runner
+from nmt_ros.topics import (
+    FORCE_PLATE_WRENCH,
+    MOCAP_SEGMENT_ANGLES,
+    SKELETAL_GENERALIZED_COORDINATES,
+    SKELETAL_GROUND_WRENCH,
+    SKELETAL_JOINT_TORQUES,
+    SKELETAL_SEGMENT_ANGLES,
+    WRENCH_FRAME,
+)
 from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 
 NODE_NAME = 'skeletal_tracker'
-ANGLES_TOPIC = '/mocap/segment_angles'
-WRENCH_TOPIC = '/force_plate/wrench'
-TORQUES_TOPIC = '/nmt/skeletal/joint_torques'
-SEGMENTS_TOPIC = '/nmt/skeletal/segment_angles'
-COORDS_TOPIC = '/nmt/skeletal/generalized_coordinates'
-GROUND_TOPIC = '/nmt/skeletal/ground_wrench'
-OUTPUT_TOPICS = (TORQUES_TOPIC, SEGMENTS_TOPIC, COORDS_TOPIC, GROUND_TOPIC)
 
 
 class SkeletalTrackerNode(TrackerNode):
     """Stage 1 as a node (see the module docstring)."""
 
-    INPUTS = {ANGLES_TOPIC: JointState, WRENCH_TOPIC: WrenchStamped}
-    OUTPUTS = {TORQUES_TOPIC: JointState, SEGMENTS_TOPIC: JointState, COORDS_TOPIC: JointState,
-               GROUND_TOPIC: WrenchStamped}
+    INPUTS = {MOCAP_SEGMENT_ANGLES: JointState, FORCE_PLATE_WRENCH: WrenchStamped}
+    OUTPUTS = {SKELETAL_JOINT_TORQUES: JointState, SKELETAL_SEGMENT_ANGLES: JointState,
+               SKELETAL_GENERALIZED_COORDINATES: JointState, SKELETAL_GROUND_WRENCH: WrenchStamped}
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -82,7 +84,7 @@ class SkeletalTrackerNode(TrackerNode):
         self.max_force_error_bw = p('max_force_error_bw', SKTSettings().max_force_error_bw,
                                     'loss of control: vertical force error above this [BW]',
                                     low=0.0, high=100.0)
-        self.wrench_frame = p('wrench_frame', 'foot_com', "required header.frame_id of the "
+        self.wrench_frame = p('wrench_frame', WRENCH_FRAME, "required header.frame_id of the "
                               "force-plate wrench ('' = any)")
         self.epoch_ns = p('epoch_ns', 0, 'header stamp of trial time 0 [ns] (0 = the first '
                           'observation received)', low=0, high=2**62)
@@ -109,8 +111,8 @@ class SkeletalTrackerNode(TrackerNode):
         self.runner = Stage1Runner(self.model, self.settings, self.conditioning,
                                    self.angle_rate_hz, self.wrench_rate_hz)
         self.clock = TrialClock(self.epoch_ns)
-        self.gates = self.stream_gates({ANGLES_TOPIC: 1 / self.angle_rate_hz,
-                                        WRENCH_TOPIC: 1 / self.wrench_rate_hz})
+        self.gates = self.stream_gates({MOCAP_SEGMENT_ANGLES: 1 / self.angle_rate_hz,
+                                        FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz})
         self.polled_until = -np.inf
         self.first_pending = np.inf
         self.create_timer(self.poll_period_s, self.poll)
@@ -118,7 +120,7 @@ class SkeletalTrackerNode(TrackerNode):
 
     # ------------------------------------------------------------------ inputs
     def parse(self, topic: str, msg: JointState | WrenchStamped) -> tuple[int, np.ndarray]:
-        if topic == ANGLES_TOPIC:
+        if topic == MOCAP_SEGMENT_ANGLES:
             sample = from_joint_state(msg, SEGMENTS, require=('position',))
             return sample.stamp_ns, sample.position
         return from_planar_wrench(msg, self.wrench_frame or None)
@@ -127,7 +129,7 @@ class SkeletalTrackerNode(TrackerNode):
              received: float) -> None:
         if self.runner.status != 'ok':
             return
-        add = self.runner.add_angles if topic == ANGLES_TOPIC else self.runner.add_wrench
+        add = self.runner.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.runner.add_wrench
         for sample in samples:
             add(self.clock.t(sample.stamp_ns), sample.values)
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
@@ -173,13 +175,13 @@ class SkeletalTrackerNode(TrackerNode):
         theta, = m.batch(m.joint_angles, out.q)
         theta_dot, = m.batch(m.joint_angles, out.qd)
         self.publish_batches(stamps, {
-            TORQUES_TOPIC: joint_states_from_arrays(stamps, JOINTS, position=theta,
-                                                    velocity=theta_dot, effort=out.tau),
-            SEGMENTS_TOPIC: joint_states_from_arrays(stamps, SEGMENTS, position=out.q[:, :4],
-                                                     velocity=out.qd[:, :4]),
-            COORDS_TOPIC: joint_states_from_arrays(stamps, Q_NAMES, position=out.q,
-                                                   velocity=out.qd),
-            GROUND_TOPIC: planar_wrenches_from_arrays(stamps, 'foot_com', out.s),
+            SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
+                stamps, JOINTS, position=theta, velocity=theta_dot, effort=out.tau),
+            SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
+                stamps, SEGMENTS, position=out.q[:, :4], velocity=out.qd[:, :4]),
+            SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
+                stamps, Q_NAMES, position=out.q, velocity=out.qd),
+            SKELETAL_GROUND_WRENCH: planar_wrenches_from_arrays(stamps, WRENCH_FRAME, out.s),
         })
         if np.isfinite(received):
             self.status.delay(time.monotonic() - received)
