@@ -217,8 +217,8 @@ def window_study(model: JumperModel, run: object, truth: Truth, windows_s: list[
 def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
               po: dict | None = None) -> dict:
     """The whole study on ``bag`` (a synthetic trial bag); writes ``out``; returns metrics."""
-    from nmt_ros.cli.track import track_bag
     from nmt_ros.model.jumper import default_model
+    from nmt_ros.study.batch import track_bag
     from nmt_ros.study.report import markdown_report
 
     model = default_model()
