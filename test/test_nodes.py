@@ -62,11 +62,11 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
     from rclpy.executors import SingleThreadedExecutor
 
     from nmt_ros.io.bags import bag_info, read_arrays
-    from nmt_ros.nodes.graph_report import graph_summary
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
     from nmt_ros.nodes.observation_publisher import ObservationPublisherNode
     from nmt_ros.nodes.recorder import RecorderNode
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+    from nmt_ros.study.recording_evaluation import graph_summary
 
     out = tmp_path / 'recording'
     rec = RecorderNode(context=ros_context, parameter_overrides=params(output=str(out)))
@@ -225,7 +225,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
                       'filled with 108 interpolated samples', 'publisher gone'):
             assert words in text, words
         assert skel.status.rejected == {ANGLES: 3, WRENCH: 4}
-        assert skel.runner.status == 'ok'
+        assert skel.stream.status == 'ok'
         stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
                            for m in outputs])
         assert (np.diff(stamps) > 0).all() and stamps[-1] > sw[0] + 200_000_000
@@ -302,11 +302,12 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
     from nmt_ros.records import TRIAL_EPOCH_NS
     from nmt_ros.tracking.conditioning import condition
-    from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings
+    from nmt_ros.tracking.streaming import track_stage1
 
     obs, _, _ = _observations()
     model = default_model()
-    res = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench),
+    res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench),
                 SKTSettings().with_(substeps=1), t_end=0.08)
     th, = model.batch(model.joint_angles, res.q)
     thd, = model.batch(model.joint_angles, res.qd)

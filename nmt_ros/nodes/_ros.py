@@ -209,7 +209,7 @@ class TrackerNode(NmtNode):
     """Base of the trackers: gated input streams, trials, end of stream, idle watchdog.
 
     A subclass names its ``INPUTS`` and ``OUTPUTS`` (topic -> message type), builds
-    ``self.runner`` (``reset()`` starts a trial), ``self.gates`` (:meth:`stream_gates`) and,
+    ``self.stream`` (``reset()`` starts a trial), ``self.gates`` (:meth:`stream_gates`) and,
     if the epoch is a parameter, ``self.clock``; then it calls :meth:`listen`. It implements
     :meth:`parse` (message -> stamp, values; ValueError rejects it), :meth:`feed` (the samples
     the gate let through) and :meth:`flush` (the last outputs of a trial), and publishes
@@ -238,7 +238,7 @@ class TrackerNode(NmtNode):
         self.book = TrialBook(self.INPUTS)
         self.clock = TrialClock(0)
         self.gates: dict[str, StreamGate] = {}
-        self.runner: Any = None
+        self.stream: Any = None
         self.tracking = False
         self.last_input = time.monotonic()
         self.newest_input_ns = 0
@@ -329,7 +329,7 @@ class TrackerNode(NmtNode):
     # ------------------------------------------------------------------ trial
     def _start_trial(self, stamp_ns: int) -> None:
         trial = self.book.start()
-        self.runner.reset()
+        self.stream.reset()
         self.clock.reset()
         epoch = self.clock.start(stamp_ns)
         for gate in self.gates.values():

@@ -3,9 +3,10 @@
 Subscribes ``/mocap/segment_angles`` (JointState [foot, shank, thigh, hat], position) and
 ``/force_plate/wrench`` (WrenchStamped in ``wrench_frame``), filters them with a fixed
 look-ahead (``lookahead_s``: the estimate for instant t is computed once data up to
-t + lookahead_s has arrived) and steps Stage 1 (``Stage1Stream``, the batch tracker's code)
-after each arrival. Publishes, stamped with the observation instant (the force-plate
-samples k / wrench_rate_hz from the trial start):
+t + lookahead_s has arrived) and steps Stage 1 after each arrival
+(``nmt_ros.tracking.streaming.Stage1Stream``, the batch tracker's code). Publishes, stamped
+with the observation instant (the force-plate samples k / wrench_rate_hz from the trial
+start):
 
 - ``/nmt/skeletal/joint_torques``: JointState [ankle, knee, hip], position/velocity = OpenSim
   joint angle/rate, effort = torque [N m] (as ``/truth/joint_torques``);
@@ -36,7 +37,6 @@ from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.nodes._core import ERROR, Sample, TrialClock
 from nmt_ros.nodes._ros import TrackerNode, run_node
-from nmt_ros.nodes._streams import Stage1Output, Stage1Runner
 from nmt_ros.topics import (
     FORCE_PLATE_WRENCH,
     MOCAP_SEGMENT_ANGLES,
@@ -48,6 +48,7 @@ from nmt_ros.topics import (
 )
 from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.streaming import Stage1Output, Stage1Stream
 
 NODE_NAME = 'skeletal_tracker'
 
@@ -108,8 +109,9 @@ class SkeletalTrackerNode(TrackerNode):
 
         # the numerical core (built before any input is accepted)
         self.model = default_model()
-        self.runner = Stage1Runner(self.model, self.settings, self.conditioning,
-                                   self.angle_rate_hz, self.wrench_rate_hz)
+        self.stream = Stage1Stream(self.model, self.settings, self.conditioning,
+                                   angle_rate_hz=self.angle_rate_hz,
+                                   wrench_rate_hz=self.wrench_rate_hz)
         self.clock = TrialClock(self.epoch_ns)
         self.gates = self.stream_gates({MOCAP_SEGMENT_ANGLES: 1 / self.angle_rate_hz,
                                         FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz})
@@ -127,24 +129,24 @@ class SkeletalTrackerNode(TrackerNode):
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
              received: float) -> None:
-        if self.runner.status != 'ok':
+        if self.stream.status != 'ok':
             return
-        add = self.runner.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.runner.add_wrench
+        add = self.stream.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.stream.add_wrench
         for sample in samples:
             add(self.clock.t(sample.stamp_ns), sample.values)
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
         self.first_pending = min(self.first_pending, received)
-        if self.runner.final_until - self.polled_until >= self.poll_min_s:
+        if self.stream.final_until - self.polled_until >= self.poll_min_s:
             self.poll()
         self._check_end()
 
     def poll(self) -> None:
         """Step Stage 1 over everything that became final; publish."""
-        if not self.tracking or self.runner.final_until <= self.polled_until:
+        if not self.tracking or self.stream.final_until <= self.polled_until:
             return
-        self.polled_until = self.runner.final_until
+        self.polled_until = self.stream.final_until
         received, self.first_pending = self.first_pending, np.inf
-        self._publish(self.runner.poll(), received)
+        self._publish(self.stream.poll(), received)
 
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
@@ -153,15 +155,15 @@ class SkeletalTrackerNode(TrackerNode):
         self.status.extra['epoch_ns'] = epoch_ns
 
     def flush(self) -> None:
-        self._publish(self.runner.finish(), time.monotonic())
+        self._publish(self.stream.finish(), time.monotonic())
 
     def end_state(self) -> str:
-        return 'lost_control' if self.runner.status != 'ok' else 'finished'
+        return 'lost_control' if self.stream.status != 'ok' else 'finished'
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, out: Stage1Output | None, received: float) -> None:
-        if self.runner.status != 'ok' and self.status.state != 'lost_control':
-            ev = self.runner.events[0] if self.runner.events else {}
+        if self.stream.status != 'ok' and self.status.state != 'lost_control':
+            ev = self.stream.events[0] if self.stream.events else {}
             self.status.state = 'lost_control'
             self.status.error = (f'loss of control at t = {ev.get("t", float("nan")):.4f} s: '
                                  f'{ev.get("reason", "?")}')
@@ -170,13 +172,11 @@ class SkeletalTrackerNode(TrackerNode):
             self.publish_status()
         if out is None or out.t.size == 0:
             return
-        m = self.model
         stamps = self.clock.stamps(out.t)
-        theta, = m.batch(m.joint_angles, out.q)
-        theta_dot, = m.batch(m.joint_angles, out.qd)
         self.publish_batches(stamps, {
             SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
-                stamps, JOINTS, position=theta, velocity=theta_dot, effort=out.tau),
+                stamps, JOINTS, position=out.joint_angles, velocity=out.joint_rates,
+                effort=out.tau),
             SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
                 stamps, SEGMENTS, position=out.q[:, :4], velocity=out.qd[:, :4]),
             SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
@@ -188,7 +188,7 @@ class SkeletalTrackerNode(TrackerNode):
 
     def status_values(self) -> None:
         super().status_values()
-        self.status.extra['final_until_s'] = float(self.runner.final_until)
+        self.status.extra['final_until_s'] = float(self.stream.final_until)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -22,12 +22,8 @@ from nmt_ros.tracking.neuromuscular_tracker import (
     Stage2Result,
     load_stage2_settings,
 )
-from nmt_ros.tracking.skeletal_tracker import (
-    SKTSettings,
-    initial_state,
-    reference_arrays,
-    track,
-)
+from nmt_ros.tracking.skeletal_tracker import SKTSettings, initial_state, reference_arrays
+from nmt_ros.tracking.streaming import track_stage1
 
 STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle')
 STAGE1_LABELS = {'skt': 'SKT', 'optimal': 'optimal tracking',
@@ -105,7 +101,7 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     cpu['conditioning'] = time.process_time() - c
 
     say('Stage 1: skeletal motion tracker')
-    skt = track(model, cond, settings.skt, settings.rate_hz)
+    skt = track_stage1(model, cond, settings.skt, settings.rate_hz)
     cpu['stage1'] = skt.cpu_s + cpu['conditioning']
     if settings.stage1 in STAGE1_METHODS[1:] and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
