@@ -40,7 +40,7 @@ class StatusProbe:
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticArray
 
-        from nmt_ros.nodes._ros import STATUS_QOS
+        from nmt_ros.nodes.node_base import STATUS_QOS
 
         self.records = []
         node.create_subscription(DiagnosticArray, '/nmt/status', self._on, STATUS_QOS)
@@ -132,7 +132,7 @@ def _tracker_io(probe, source):
     from geometry_msgs.msg import WrenchStamped
     from sensor_msgs.msg import JointState
 
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
 
     status = StatusProbe(probe)
     outputs = []
@@ -151,7 +151,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
     from nmt_ros.io.bags import bag_info, read_raw
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
     from nmt_ros.nodes.recorder import RecorderNode
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
@@ -298,8 +298,8 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
 
     from msg_adapters.joint_state import to_joint_state
     from nmt_ros.model.jumper import default_model
-    from nmt_ros.nodes._ros import NmtNode, data_qos
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
+    from nmt_ros.nodes.node_base import NmtNode, data_qos
     from nmt_ros.records import TRIAL_EPOCH_NS
     from nmt_ros.tracking.conditioning import condition
     from nmt_ros.tracking.skeletal_tracker import SKTSettings
@@ -386,7 +386,7 @@ def test_recorder_records_raw_with_publisher_times(ros_context, tmp_path):
     from std_msgs.msg import String
 
     from nmt_ros.io.bags import bag_info, read_bag, read_raw
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
     from nmt_ros.nodes.recorder import RecorderNode
 
     out = tmp_path / 'rec'

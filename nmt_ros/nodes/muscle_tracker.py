@@ -27,8 +27,10 @@ from sensor_msgs.msg import JointState
 from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
 from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, MUSCLES
-from nmt_ros.nodes._core import ERROR, WARN, Sample
-from nmt_ros.nodes._ros import TrackerNode, run_node
+from nmt_ros.nodes.input_gate import Sample
+from nmt_ros.nodes.node_base import TrackerNode
+from nmt_ros.nodes.node_status import ERROR, WARN
+from nmt_ros.nodes.runtime import run_node
 from nmt_ros.topics import (
     MUSCLE_ACTIVATIONS,
     MUSCLE_EXCITATIONS,

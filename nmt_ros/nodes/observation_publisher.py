@@ -24,9 +24,10 @@ import time
 from msg_adapters.cdr_header import header_stamp_ns
 from msg_adapters.diagnostics import ERROR
 from nmt_ros.io.bags import BagError, bag_info, read_raw
-from nmt_ros.nodes._core import missing_subscribers
-from nmt_ros.nodes._ros import NmtNode, data_qos, run_node
 from nmt_ros.nodes.bag_player import BagPlayer
+from nmt_ros.nodes.node_base import NmtNode, data_qos
+from nmt_ros.nodes.readiness import missing_subscribers
+from nmt_ros.nodes.runtime import run_node
 from nmt_ros.topics import OBSERVATIONS
 
 NODE_NAME = 'observation_publisher'

@@ -35,8 +35,10 @@ from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
 from msg_adapters.planar import from_planar_wrench, planar_wrenches_from_arrays
 from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
-from nmt_ros.nodes._core import ERROR, Sample, TrialClock
-from nmt_ros.nodes._ros import TrackerNode, run_node
+from nmt_ros.nodes.input_gate import Sample, TrialClock
+from nmt_ros.nodes.node_base import TrackerNode
+from nmt_ros.nodes.node_status import ERROR
+from nmt_ros.nodes.runtime import run_node
 from nmt_ros.topics import (
     FORCE_PLATE_WRENCH,
     MOCAP_SEGMENT_ANGLES,

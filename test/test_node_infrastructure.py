@@ -1,25 +1,19 @@
-"""The nodes' ROS-free parts: input gates, trial time, end of stream, status records
-(nmt_ros.nodes._core)."""
+"""The nodes' ROS-free parts: input gates and trial time (nmt_ros.nodes.input_gate), readiness
+(readiness), end of stream (end_of_stream) and status records (node_status)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nmt_ros.nodes._core import (
-    ERROR,
-    OK,
-    WARN,
+from nmt_ros.nodes.end_of_stream import (
     EndOfStream,
-    NodeStatus,
-    StreamGate,
     TrialBook,
-    TrialClock,
     end_of_stream_values,
-    missing_subscribers,
     parse_end_of_stream,
-    parse_wait_for,
-    percentiles_ms,
 )
+from nmt_ros.nodes.input_gate import StreamGate, TrialClock
+from nmt_ros.nodes.node_status import ERROR, OK, WARN, NodeStatus, percentiles_ms
+from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
 
 MS = 1_000_000
 
