@@ -48,6 +48,7 @@ import numpy as np
 from nmt_ros.model.integrate import rk4_step
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.conditioning import ConditionedObservations
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
 N_REF = 18  # theta(4), theta_dot(4), theta_ddot(4), s(3), s_dot(3)
 
@@ -58,9 +59,12 @@ class SKTSettings:
 
     poles: tuple[float, ...] = (50.0, 50.0, 50.0, 50.0, 1000.0, 1000.0, 1000.0)
     weights: tuple[float, ...] = (0.001, 0.7, 0.8, 1.0, 2.0, 2.0, 1.0)
+    # Row scales of Eq. 5 (the error a row demands be removed, in these units): 1 deg for the
+    # angles (Table 1's weights carry the per-segment trust), the force plate's noise SD for
+    # the contact rows, from the observation specification.
     angle_scale_deg: float | tuple[float, ...] = 1.0   # one value or one per segment
-    force_scale_bw: float = 0.02
-    moment_lever_m: float = 0.17
+    force_scale_bw: float = OBSERVATION_NOISE.force_sd_bw
+    moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m   # moment scale = force x lever
     bias_rate: float = 20.0          # kappa (1/s) of the moment-bias estimate; 0 = off
     # Tikhonov rows sqrt(w) tau / torque_scale added to Eq. 5: keeps the torques determined
     # when the contact rows vanish (flight) and the foot angle's weight is tiny. 0 = off.
