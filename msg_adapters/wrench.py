@@ -96,7 +96,3 @@ def wrenches_to_arrays(msgs: Sequence[WrenchStamped], frame_id: str | None = Non
     return WrenchSeries(stamp_ns=stamp_ns, frame_id=frame, force=values[:, :3],
                         torque=values[:, 3:])
 
-
-def series_to_wrenches(series: WrenchSeries) -> list[WrenchStamped]:
-    """A :class:`WrenchSeries` back to messages."""
-    return wrenches_from_arrays(series.stamp_ns, series.frame_id, series.force, series.torque)
