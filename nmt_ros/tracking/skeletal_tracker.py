@@ -41,6 +41,7 @@ state); ``nmt_ros.tracking.streaming`` runs it on data, live or over a whole rec
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+import functools
 
 import casadi as ca
 import numpy as np
@@ -266,12 +267,17 @@ def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Functio
     the joint torques cancel in these combinations), weighted heavily; the angles' deviation
     from the observed ones and the moment's from the observed moment, normalised and weighted
     as the rows of Eq. 5. The anchors sit under the contact points (springs unstretched).
+    Built once per model and the settings it depends on (weights and row scales).
     """
-    key = ('static_residual', st.weights, st.angle_scale_deg, st.force_scale_bw,
-           st.moment_lever_m)
-    cache = model.__dict__.setdefault('_skt_cache', {})
-    if key in cache:
-        return cache[key]
+    relevant = SKTSettings(weights=st.weights, angle_scale_deg=st.angle_scale_deg,
+                           force_scale_bw=st.force_scale_bw, moment_lever_m=st.moment_lever_m)
+    return _static_residual(model, relevant)
+
+
+# Bounded: a process builds one or two (model, settings) pairs; at most 8 are kept alive.
+@functools.lru_cache(maxsize=8)
+def _static_residual(model: JumperModel, st: SKTSettings) -> ca.Function:
+    """The compiled residual of :func:`_static_residual_function` (cached)."""
     z = ca.SX.sym('z', 5)
     th_obs = ca.SX.sym('theta_obs', 4)
     m_obs = ca.SX.sym('moment_obs')
@@ -288,9 +294,7 @@ def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Functio
         z[0:4] - th_obs)
     moment = w[6] * (s[2] - m_obs) / (st.force_scale_bw * bw * st.moment_lever_m)
     r = ca.vertcat(balance, angles, moment)
-    cache[key] = ca.Function('skt_static_residual', [z, th_obs, m_obs],
-                             [r, ca.jacobian(r, z)])
-    return cache[key]
+    return ca.Function('skt_static_residual', [z, th_obs, m_obs], [r, ca.jacobian(r, z)])
 
 
 def _flat_foot_angle(model: JumperModel) -> float:
