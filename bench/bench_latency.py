@@ -3,9 +3,9 @@
     .venv/bin/python bench/bench_latency.py [--bag bags/reference_jump] [--rates 1 2 4 8]
                                             [--repeat 1] [--skip-graph]
 
-1. Streaming vs batch without ROS (``nmt_ros.nodes._streams``, the nodes' code path, fed the
+1. Streaming vs batch without ROS (``nmt_ros.tracking.streaming``, the nodes' code path, fed the
    observations sample by sample with the skeletal tracker's polling rule):
-   Stage 1 joint torques vs the batch ``track`` (same settings) for look-aheads 10..150 ms,
+   Stage 1 joint torques vs the batch ``track_stage1`` (same settings) for look-aheads 10..150 ms,
    RMS in % of each joint's peak (all samples; and the samples streamed before the final
    flush), and the look-ahead's share of the latency; Stage 2 muscle forces for windows H
    (fed the streamed Stage-1 output) vs the batch windowed Stage 2 on the batch Stage-1
@@ -35,10 +35,15 @@ from nmt_ros.cli.launch import config_path, run_graph  # noqa: E402
 from nmt_ros.io.trial_bag import read_observations  # noqa: E402
 from nmt_ros.model.jumper import default_model  # noqa: E402
 from nmt_ros.model.parameters import JOINTS  # noqa: E402
-from nmt_ros.nodes._streams import Stage1Runner, Stage2Runner, initial_activations  # noqa: E402
 from nmt_ros.tracking.conditioning import ConditioningSettings, condition  # noqa: E402
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker  # noqa: E402
-from nmt_ros.tracking.skeletal_tracker import SKTSettings, track  # noqa: E402
+from nmt_ros.tracking.skeletal_tracker import SKTSettings  # noqa: E402
+from nmt_ros.tracking.streaming import (  # noqa: E402
+    Stage1Stream,
+    Stage2Stream,
+    initial_activations,
+    track_stage1,
+)
 
 LOOKAHEADS = (0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.12, 0.15)
 WINDOWS = (0.02, 0.03, 0.05, 0.1)
@@ -46,33 +51,33 @@ WINDOWS = (0.02, 0.03, 0.05, 0.1)
 
 def stream_stage1(model, obs, skt, lookahead, poll_min=0.008):
     """Stage 1 as the node runs it: poll once the final horizon advanced poll_min."""
-    runner = Stage1Runner(model, skt, ConditioningSettings(lookahead_s=lookahead))
+    stream = Stage1Stream(model, skt, ConditioningSettings(lookahead_s=lookahead))
     events = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
                     + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
     outs, polled = [], -np.inf
     for t, kind, i in events:
-        (runner.add_angles if kind == 0 else runner.add_wrench)(
+        (stream.add_angles if kind == 0 else stream.add_wrench)(
             t, (obs.angles if kind == 0 else obs.wrench)[i])
-        if runner.final_until - polled >= poll_min:
-            polled = runner.final_until
-            out = runner.poll()
+        if stream.final_until - polled >= poll_min:
+            polled = stream.final_until
+            out = stream.poll()
             if out is not None:
                 outs.append(out)
     streamed = sum(o.t.size for o in outs)
-    outs.append(runner.finish())
+    outs.append(stream.finish())
     outs = [o for o in outs if o is not None]
     cat = {k: np.concatenate([getattr(o, k) for o in outs]) for k in ('t', 'tau', 'q', 'qd')}
-    return cat, streamed, runner.status
+    return cat, streamed, stream.status
 
 
 def stage2_stream(model, tracker, t, tau, th, thd, window, stride=0.01):
-    runner = Stage2Runner(model, tracker, window, stride)
+    stream = Stage2Stream(model, tracker, window, stride)
     outs = []
     for i in range(t.size):
-        runner.add(i, t[i], tau[i], th[i], thd[i])
+        stream.add(i, t[i], tau[i], th[i], thd[i])
         if i % 9 == 8:
-            outs.append(runner.process())
-    outs.append(runner.process(final=True))
+            outs.append(stream.process())
+    outs.append(stream.process(final=True))
     return np.concatenate([o.f for o in outs if o is not None])
 
 
@@ -81,9 +86,10 @@ def accuracy_tables(bag: Path) -> None:
     obs = read_observations(bag)
     skt = SKTSettings().with_(substeps=1)
     c0 = time.process_time()
-    batch = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench), skt)
+    batch = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench),
+                         skt)
     batch_cpu = time.process_time() - c0
-    default = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    default = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     peak = np.abs(batch.tau).max(axis=0)
     d_sub = np.sqrt(np.mean((batch.tau - default.tau) ** 2, axis=0)) / peak * 100
     print(f'bag {bag}: {obs.t_angles.size} angle, {obs.t_wrench.size} force samples '
@@ -141,7 +147,7 @@ def padded_bag(bag: Path, pad_s: float, out: Path) -> Path:
     """The bag's observations after ``pad_s`` of quiet standing (the first sample held), as a
     lab trial starts: the tracker's start-up (initial state) is then over before the jump."""
     from nmt_ros.io.trial_bag import write_trial_bag
-    from nmt_ros.study.trial import Observations
+    from nmt_ros.records import Observations
 
     obs = read_observations(bag)
     na, nw = int(round(pad_s * 120)), int(round(pad_s * 1080))
@@ -155,7 +161,7 @@ def padded_bag(bag: Path, pad_s: float, out: Path) -> Path:
 
 
 def graph_tables(bag: Path, rates: list[float], repeat: int, label: str = '') -> None:
-    from nmt_ros.nodes.graph_report import graph_summary
+    from nmt_ros.study.recording_evaluation import graph_summary
 
     print(f'\n2. the graph as processes (nmt launch --record){label}, latency from an '
           'observation\'s publication [ms]')

@@ -23,7 +23,8 @@ from nmt_ros.tracking.optimal_tracker import (
     collocation_grid,
     track_optimal,
 )
-from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.streaming import track_stage1
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
@@ -33,7 +34,7 @@ def timed(model, obs, settings, repeat=5):
     for _ in range(repeat):
         c = time.process_time()
         cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-        res = track(model, cond, settings)
+        res = track_stage1(model, cond, settings)
         best = min(best, time.process_time() - c)
     return best, res
 
@@ -52,14 +53,14 @@ def main() -> None:
     print(json.dumps(optimal(model, obs, duration), indent=1))
     prof = cProfile.Profile()
     prof.enable()
-    track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     prof.disable()
     pstats.Stats(prof).sort_stats('cumulative').print_stats(12)
 
 
 def optimal(model, obs, duration: float) -> dict:
     """Build and solve times of optimal tracking (torque and muscle actuation)."""
-    guess = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    guess = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     n, h, idx, keep = collocation_grid(obs)
     out = {}
     for actuation in ('torque', 'muscle'):

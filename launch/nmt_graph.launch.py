@@ -16,10 +16,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-
-SKELETAL = ('/nmt/skeletal/joint_torques', '/nmt/skeletal/segment_angles',
-            '/nmt/skeletal/generalized_coordinates', '/nmt/skeletal/ground_wrench')
-MUSCLE = ('/nmt/muscle/forces', '/nmt/muscle/activations', '/nmt/muscle/excitations')
+from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -35,10 +32,11 @@ def generate_launch_description() -> LaunchDescription:
         Node(package='nmt_ros', executable='recorder', name='recorder', output='screen',
              parameters=[params, {'output': LaunchConfiguration('record')}]),
         Node(package='nmt_ros', executable='muscle_tracker', name='muscle_tracker',
-             output='screen', parameters=[params, {'wait_for': [f'{t}=1' for t in MUSCLE]}]),
+             output='screen',
+             parameters=[params, {'wait_for': [f'{t}=1' for t in MUSCLE_OUTPUTS]}]),
         Node(package='nmt_ros', executable='skeletal_tracker', name='skeletal_tracker',
-             output='screen', parameters=[params, {'wait_for': [f'{SKELETAL[0]}=2'] + [
-                 f'{t}=1' for t in SKELETAL[1:]]}]),
+             output='screen', parameters=[params, {'wait_for': [f'{SKELETAL_OUTPUTS[0]}=2'] + [
+                 f'{t}=1' for t in SKELETAL_OUTPUTS[1:]]}]),
         Node(package='nmt_ros', executable='observation_publisher',
              name='observation_publisher', output='screen',
              parameters=[params, {'bag': LaunchConfiguration('bag'),

@@ -9,7 +9,7 @@ here fills **all three arrays with one value per name**; a quantity the topic do
 is filled with NaN (:data:`NOT_PROVIDED`), meaning "not provided". E.g. joint torques:
 ``effort`` = torques, ``position`` and ``velocity`` NaN. Each topic fills the same arrays in
 every message, so its layout (and serialised size) is constant, which also lets
-``nmt_ros.io.cdr_arrays`` decode a whole bag topic at once.
+``msg_adapters.cdr_arrays`` decode a whole bag topic at once.
 
 Readers map empty arrays of foreign messages to NaN as well, so the arrays returned here are
 always ``[k]`` (single message) or ``[n, k]`` (batch). Provided data are validated: NaN/inf,
@@ -26,8 +26,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from nmt_ros.io.series import JointStateSeries
-
+from .series import JointStateSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite, check_names, reorder_index
 
@@ -127,7 +126,7 @@ def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = 
 
 def joint_states_to_arrays(msgs: Sequence[JointState], names: Sequence[str] | None = None,
                            require: Iterable[str] = ()) -> JointStateSeries:
-    """``n`` JointState messages -> :class:`~nmt_ros.io.series.JointStateSeries`.
+    """``n`` JointState messages -> :class:`~msg_adapters.series.JointStateSeries`.
 
     All messages must carry the same names (in any order when ``names`` is given, else in
     the first message's order); empty arrays become NaN; ``require`` as in

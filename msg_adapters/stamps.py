@@ -46,11 +46,6 @@ def time_to_ns(t: Any) -> int:
     return int(t.sec) * NS_PER_S + int(t.nanosec)
 
 
-def time_to_sec(t: Any) -> float:
-    """``builtin_interfaces/msg/Time`` -> float seconds."""
-    return int(t.sec) + int(t.nanosec) * 1e-9
-
-
 def stamps_to_ns(stamps: Any) -> np.ndarray:
     """An array of stamps -> int64 ns ``[n]`` (integer dtype: ns; float dtype: seconds)."""
     arr = np.asarray(stamps)

@@ -13,8 +13,7 @@ from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
 import numpy as np
 from std_msgs.msg import Header
 
-from nmt_ros.io.series import WrenchSeries
-
+from .series import WrenchSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite
 
@@ -79,7 +78,7 @@ def wrenches_from_arrays(stamps: Any, frame_id: str, force: Any,
 
 def wrenches_to_arrays(msgs: Sequence[WrenchStamped], frame_id: str | None = None,
                        check: bool = True) -> WrenchSeries:
-    """``n`` messages -> :class:`~nmt_ros.io.series.WrenchSeries` (one frame_id required)."""
+    """``n`` messages -> :class:`~msg_adapters.series.WrenchSeries` (one frame_id required)."""
     n = len(msgs)
     if n == 0:
         return WrenchSeries(np.empty(0, dtype=np.int64), frame_id or '', np.empty((0, 3)),
@@ -97,7 +96,3 @@ def wrenches_to_arrays(msgs: Sequence[WrenchStamped], frame_id: str | None = Non
     return WrenchSeries(stamp_ns=stamp_ns, frame_id=frame, force=values[:, :3],
                         torque=values[:, 3:])
 
-
-def series_to_wrenches(series: WrenchSeries) -> list[WrenchStamped]:
-    """A :class:`WrenchSeries` back to messages."""
-    return wrenches_from_arrays(series.stamp_ns, series.frame_id, series.force, series.torque)

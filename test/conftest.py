@@ -55,10 +55,10 @@ def batch_samples() -> int:
         from nmt_ros.io.trial_bag import read_observations
         from nmt_ros.model.jumper import default_model
         from nmt_ros.tracking.conditioning import condition
-        from nmt_ros.tracking.skeletal_tracker import track
+        from nmt_ros.tracking.streaming import track_stage1
 
         obs = read_observations(Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump')
-        res = track(default_model(), condition(obs.t_angles, obs.angles, obs.t_wrench,
+        res = track_stage1(default_model(), condition(obs.t_angles, obs.angles, obs.t_wrench,
                                                obs.wrench))
         _BATCH_SAMPLES.append(int(res.t.size))
     return _BATCH_SAMPLES[0]

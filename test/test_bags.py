@@ -237,6 +237,55 @@ def test_other_compressions_read_back(tmp_bag, compression):
     check_angles(angles.stamp_ns, angles.position, rec)
 
 
+def _foreign_mcap(path: Path, channel_metadata: dict, rosbag2_record: dict | None = None,
+                  ) -> Path:
+    """A one-message MCAP written by the mcap library alone (a writer other than ours)."""
+    from mcap.writer import Writer
+
+    with open(path, 'wb') as stream:
+        writer = Writer(stream)
+        writer.start(profile='ros2', library='test')
+        schema = writer.register_schema(JS, 'ros2msg', msgdefs.full_definition(JS).encode())
+        channel = writer.register_channel(ANGLES, 'cdr', schema, channel_metadata)
+        writer.add_message(channel, log_time=T0, data=b'', publish_time=T0)
+        if rosbag2_record is not None:
+            writer.add_metadata('rosbag2', rosbag2_record)
+        writer.finish()
+    return path
+
+
+def test_foreign_mcap_without_channel_metadata_reads_as_no_qos_and_no_hash(tmp_path):
+    info = bags.bag_info(_foreign_mcap(tmp_path / 'plain.mcap', {}))
+    (topic,) = info.topics
+    assert (topic.name, topic.type, topic.offered_qos, topic.type_hash) == (ANGLES, JS, (), '')
+    assert (info.ros_distro, info.custom_data) == ('', {})
+
+
+def test_unreadable_channel_qos_or_bag_metadata_is_an_error_naming_it(tmp_path):
+    bad_qos = _foreign_mcap(tmp_path / 'qos.mcap', {'offered_qos_profiles': '- [unclosed'})
+    with pytest.raises(bags.BagError, match=f'topic {ANGLES}: unreadable offered_qos'):
+        bags.bag_info(bad_qos)
+    bad_meta = _foreign_mcap(tmp_path / 'meta.mcap', {},
+                             {'serialized_metadata': 'custom_data: [unclosed'})
+    with pytest.raises(bags.BagError, match='unreadable serialized_metadata'):
+        bags.bag_info(bad_meta)
+
+
+def test_type_hash_missing_description_is_empty_unreadable_one_an_error(tmp_path, monkeypatch):
+    broken = tmp_path / 'Broken.json'
+    broken.write_text('{"type_hashes": [')
+    other = tmp_path / 'Other.json'
+    other.write_text('{"type_hashes": [{"type_name": "x_msgs/msg/Y", "hash_string": "h"}]}')
+    files = {'nmt_test_msgs/msg/Missing': None, 'nmt_test_msgs/msg/Broken': broken,
+             'nmt_test_msgs/msg/Other': other}
+    monkeypatch.setattr(msgdefs, '_find_share_file', lambda name, suffix: files[name])
+    assert msgdefs.type_hash('nmt_test_msgs/msg/Missing') == ''
+    with pytest.raises(ValueError, match='unreadable type description'):
+        msgdefs.type_hash('nmt_test_msgs/msg/Broken')
+    with pytest.raises(ValueError, match='has no hash for nmt_test_msgs/msg/Other'):
+        msgdefs.type_hash('nmt_test_msgs/msg/Other')
+
+
 def test_writer_refuses_existing_nonempty_path(tmp_bag):
     path = tmp_bag()
     path.mkdir()

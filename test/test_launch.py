@@ -38,7 +38,7 @@ def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
 
 @pytest.mark.parametrize('rate', [1.0, 4.0])
 def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
-    from nmt_ros.nodes.graph_report import graph_summary
+    from nmt_ros.study.recording_evaluation import graph_summary
 
     record = tmp_path / 'rec'
     proc = nmt('launch', '--record', record, '--rate', rate, '--log-dir', tmp_path / 'logs')

@@ -10,7 +10,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_typestore
 
 from msg_adapters import clock, diagnostics, joint_state, stamps, wrench
-from nmt_ros.io.cdr_arrays import decode_joint_states, decode_wrenches
+from msg_adapters.cdr_arrays import decode_joint_states, decode_wrenches
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 NAMES = ('foot', 'shank', 'thigh', 'hat')

@@ -40,7 +40,7 @@ class StatusProbe:
     def __init__(self, node):
         from diagnostic_msgs.msg import DiagnosticArray
 
-        from nmt_ros.nodes._ros import STATUS_QOS
+        from nmt_ros.nodes.node_base import STATUS_QOS
 
         self.records = []
         node.create_subscription(DiagnosticArray, '/nmt/status', self._on, STATUS_QOS)
@@ -62,11 +62,11 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
     from rclpy.executors import SingleThreadedExecutor
 
     from nmt_ros.io.bags import bag_info, read_arrays
-    from nmt_ros.nodes.graph_report import graph_summary
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
     from nmt_ros.nodes.observation_publisher import ObservationPublisherNode
     from nmt_ros.nodes.recorder import RecorderNode
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+    from nmt_ros.study.recording_evaluation import graph_summary
 
     out = tmp_path / 'recording'
     rec = RecorderNode(context=ros_context, parameter_overrides=params(output=str(out)))
@@ -118,7 +118,7 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
 
 def _observations():
     from nmt_ros.io.trial_bag import read_observations
-    from nmt_ros.study.trial import TRIAL_EPOCH_NS
+    from nmt_ros.records import TRIAL_EPOCH_NS
 
     obs = read_observations(BAG)
     sa = TRIAL_EPOCH_NS + np.rint(obs.t_angles * 1e9).astype(np.int64)
@@ -132,7 +132,7 @@ def _tracker_io(probe, source):
     from geometry_msgs.msg import WrenchStamped
     from sensor_msgs.msg import JointState
 
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
 
     status = StatusProbe(probe)
     outputs = []
@@ -151,7 +151,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
     from nmt_ros.io.bags import bag_info, read_raw
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
     from nmt_ros.nodes.recorder import RecorderNode
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
@@ -225,7 +225,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
                       'filled with 108 interpolated samples', 'publisher gone'):
             assert words in text, words
         assert skel.status.rejected == {ANGLES: 3, WRENCH: 4}
-        assert skel.runner.status == 'ok'
+        assert skel.stream.status == 'ok'
         stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
                            for m in outputs])
         assert (np.diff(stamps) > 0).all() and stamps[-1] > sw[0] + 200_000_000
@@ -298,15 +298,16 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
 
     from msg_adapters.joint_state import to_joint_state
     from nmt_ros.model.jumper import default_model
-    from nmt_ros.nodes._ros import NmtNode, data_qos
     from nmt_ros.nodes.muscle_tracker import MuscleTrackerNode
-    from nmt_ros.study.trial import TRIAL_EPOCH_NS
+    from nmt_ros.nodes.node_base import NmtNode, data_qos
+    from nmt_ros.records import TRIAL_EPOCH_NS
     from nmt_ros.tracking.conditioning import condition
-    from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings
+    from nmt_ros.tracking.streaming import track_stage1
 
     obs, _, _ = _observations()
     model = default_model()
-    res = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench),
+    res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench),
                 SKTSettings().with_(substeps=1), t_end=0.08)
     th, = model.batch(model.joint_angles, res.q)
     thd, = model.batch(model.joint_angles, res.qd)
@@ -385,7 +386,7 @@ def test_recorder_records_raw_with_publisher_times(ros_context, tmp_path):
     from std_msgs.msg import String
 
     from nmt_ros.io.bags import bag_info, read_bag, read_raw
-    from nmt_ros.nodes._ros import data_qos
+    from nmt_ros.nodes.node_base import data_qos
     from nmt_ros.nodes.recorder import RecorderNode
 
     out = tmp_path / 'rec'

@@ -14,7 +14,7 @@ from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.study.reference import simulate_musculoskeletal_rk4
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
-from nmt_ros.tracking.skeletal_tracker import track
+from nmt_ros.tracking.streaming import track_stage1
 
 MUSCLE = OptimalTrackingSettings(actuation='muscle')
 
@@ -28,7 +28,7 @@ def contact_pct(t, est, truth, ref):
 
 
 def stage1(model, obs):
-    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    skt = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     assert skt.ok
     return track_optimal(model, obs, skt, MUSCLE)
 
@@ -126,7 +126,7 @@ def test_harsher_bias_still_beats_the_papers_tracker(model, truth):
     joint (measured 1.6 / 6.7 / 5.2 %)."""
     obs, _ = make_observations(truth, ObservationSettings(seed=17, bias_shape='harmonic'),
                                body_weight=model.p.body_weight)
-    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    skt = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     res = track_optimal(model, obs, skt, MUSCLE)
     assert res.ok, res.status
     e_opt = contact_pct(res.t, res.tau, truth, truth.tau)
@@ -174,7 +174,7 @@ def test_failed_optimal_tracking_falls_back_to_the_tracker(model, obs, monkeypat
 def test_a_record_too_long_is_refused_with_a_reason(model, obs):
     """The NLP grows with the record: beyond ``max_intervals`` it is not built, and the
     status says why (the fit window ends ``flight_s`` after the guess's lift-off)."""
-    skt = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    skt = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     res = track_optimal(model, obs, skt, OptimalTrackingSettings(actuation='muscle',
                                                                  max_intervals=100))
     assert not res.ok and 'exceed max_intervals = 100' in res.status

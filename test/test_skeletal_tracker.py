@@ -6,13 +6,8 @@ import numpy as np
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.tracking.conditioning import ConditioningSettings, FixedLagConditioner, condition
 from nmt_ros.tracking.ivd import inverse_dynamics_baseline, simulate_open_loop
-from nmt_ros.tracking.skeletal_tracker import (
-    SKTSettings,
-    Stage1Stream,
-    initial_state,
-    reference_arrays,
-    track,
-)
+from nmt_ros.tracking.skeletal_tracker import SKTSettings, initial_state, reference_arrays
+from nmt_ros.tracking.streaming import Stage1Stream, track_stage1
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
@@ -33,7 +28,7 @@ def test_tracker_reproduces_the_truth_from_clean_data(model, truth):
                                body_weight=model.p.body_weight)
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
                      ConditioningSettings(angle_cutoff_hz=20.0))
-    res = track(model, cond)
+    res = track_stage1(model, cond)
     assert res.ok
     peak = np.abs(truth.tau[truth.t <= truth.liftoff_s]).max(axis=0)
     pct = 100 * contact_rms(res.t, res.tau, truth, truth.tau) / peak
@@ -44,17 +39,17 @@ def test_tracker_reproduces_the_truth_from_clean_data(model, truth):
 
 def test_exact_and_numerical_jacobians_give_the_same_torques(model, obs):
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-    exact = track(model, cond, SKTSettings(jacobians='exact'))
-    numer = track(model, cond, SKTSettings(jacobians='numerical'))
+    exact = track_stage1(model, cond, SKTSettings(jacobians='exact'))
+    numer = track_stage1(model, cond, SKTSettings(jacobians='numerical'))
     peak = np.abs(exact.tau).max(axis=0)
     assert (np.abs(exact.tau - numer.tau).max(axis=0) / peak < 1e-4).all()
 
 
 def test_live_fixed_lag_stream_matches_batch(model, obs):
     """Fed sample by sample with 100 ms of look-ahead, Stage 1 gives the batch torques."""
-    batch = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
+    batch = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench))
     cond = FixedLagConditioner(ConditioningSettings(lookahead_s=0.1))
-    stream = Stage1Stream(model, cond)
+    stream = Stage1Stream(model, conditioner=cond)
     outs, ia = [], 0
     for k, t in enumerate(obs.t_wrench):
         while ia < obs.t_angles.size and obs.t_angles[ia] <= t + 1e-12:
@@ -65,8 +60,8 @@ def test_live_fixed_lag_stream_matches_batch(model, obs):
             outs.append(stream.poll())
     cond.close()
     outs.append(stream.poll())
-    tau = np.concatenate([o['tau'] for o in outs if o is not None])
-    t = np.concatenate([o['t'] for o in outs if o is not None])
+    tau = np.concatenate([o.tau for o in outs if o is not None])
+    t = np.concatenate([o.t for o in outs if o is not None])
     np.testing.assert_allclose(t, batch.t)
     peak = np.abs(batch.tau).max(axis=0)
     rms = np.sqrt(np.mean((tau - batch.tau)[t <= 0.2] ** 2, axis=0)) / peak
@@ -76,7 +71,7 @@ def test_live_fixed_lag_stream_matches_batch(model, obs):
 def test_paper_findings_on_the_shipped_bag(model, truth, obs):
     """SKT vs filtered observations and vs IVD, on the shipped trial (paper Fig. 3)."""
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-    skt = track(model, cond)
+    skt = track_stage1(model, cond)
     assert skt.ok
     # Foot and shank closer to the actual than the filtered observations (paper Fig. 3B).
     m = skt.t <= truth.liftoff_s
@@ -112,7 +107,7 @@ def test_loss_of_control_is_detected_and_reported(model, truth):
     cases.append(condition(t_a, truth.q[0, :4] + rng.normal(size=(360, 4)) * np.radians(
         [5, 3, 2, 1]), t_w, truth.s[0] + rng.normal(size=(3240, 3)) * [14.7, 14.7, 2.5]))
     for cond in cases:
-        res = track(model, cond)
+        res = track_stage1(model, cond)
         assert res.status == 'lost_control'
         ev = res.events[0]
         assert ev['reason'] and 0 <= ev['t'] <= cond.t_end
@@ -127,7 +122,7 @@ def test_optimal_tracking_is_consistent_and_beats_the_tracker(model, truth, obs)
     from nmt_ros.tracking.optimal_tracker import track_optimal
 
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-    skt = track(model, cond)
+    skt = track_stage1(model, cond)
     opt = track_optimal(model, obs, skt)
     assert opt.ok, opt.status
     # Dynamically consistent: the torques reproduce the motion through Eq. 1.

@@ -133,8 +133,8 @@ def _reindex(args: argparse.Namespace) -> int:
 
 def _play(args: argparse.Namespace) -> int:
     from nmt_ros.io.bags import read_raw
-    from nmt_ros.nodes._ros import cli_node
     from nmt_ros.nodes.bag_player import BagPlayer, default_node_name
+    from nmt_ros.nodes.runtime import cli_node
 
     info = bag_info(args.bag_path)
     topics = list(info.topics)

@@ -2,8 +2,8 @@
 
 What ``make demo`` runs: ``nmt launch`` on ``bags/reference_jump`` at real time with every
 topic recorded to ``DIR/recording`` (a rosbag2 MCAP bag), then a report read back from the
-recording (``nmt_ros.nodes.graph_report``): jump height of the tracked motion against the
-truth, joint-torque and muscle-force errors against the truth, the agreement with the batch
+recording (``nmt_ros.study.recording_evaluation``): jump height of the tracked motion against
+the truth, joint-torque and muscle-force errors against the truth, the agreement with the batch
 trackers, latency from an observation's publication to its estimates (p50/p99), each node's
 CPU share, and messages published vs recorded. ``DIR/summary.json`` holds the numbers,
 ``DIR/logs`` the node logs and the parameters used. Outputs of a previous demo in ``DIR``
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'error: no recording in {recording}; see {result.log_dir}', file=sys.stderr)
         return result.returncode or 1
 
-    from nmt_ros.nodes.graph_report import format_summary, graph_summary
+    from nmt_ros.study.recording_evaluation import format_summary, graph_summary
 
     summary = graph_summary(recording, bag)
     summary['graph'] = {'returncode': result.returncode, 'wall_s': round(result.wall_s, 2),

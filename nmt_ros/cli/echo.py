@@ -175,7 +175,7 @@ def echo(node: Any, executor: Any, topic: str, *, msg_type: str | None = None,
 def run(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
 
-    from nmt_ros.nodes._ros import cli_node
+    from nmt_ros.nodes.runtime import cli_node
 
     options = EchoOptions(
         once=args.once, timeout_s=args.timeout, csv=args.csv,

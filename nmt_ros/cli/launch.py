@@ -41,13 +41,12 @@ from typing import Any
 
 import yaml
 
+from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
+
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 NODES = ('recorder', 'muscle_tracker', 'skeletal_tracker', 'observation_publisher')
 TRACKERS = ('muscle_tracker', 'skeletal_tracker')
-SKELETAL_OUTPUTS = ('/nmt/skeletal/joint_torques', '/nmt/skeletal/segment_angles',
-                    '/nmt/skeletal/generalized_coordinates', '/nmt/skeletal/ground_wrench')
 RECORDER_NICE = 5
-MUSCLE_OUTPUTS = ('/nmt/muscle/forces', '/nmt/muscle/activations', '/nmt/muscle/excitations')
 
 
 def config_path(name: str) -> Path:

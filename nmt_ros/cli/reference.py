@@ -36,11 +36,11 @@ def _say(msg: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from nmt_ros.io.trial_bag import write_trial_bag
     from nmt_ros.model.jumper import default_model
+    from nmt_ros.records import truth_from_simulation
     from nmt_ros.study.figures import plot_reference_jump
     from nmt_ros.study.observations import ObservationSettings, make_observations
     from nmt_ros.study.opensim_results import write_opensim_truth
     from nmt_ros.study.reference import POSettings, make_reference
-    from nmt_ros.study.trial import truth_from_simulation
 
     folder = args.out / args.name
     if folder.exists():

@@ -48,10 +48,11 @@ from mcap.writer import CompressionType, Writer
 import numpy as np
 import yaml
 
+from msg_adapters.cdr_arrays import decode_joint_states, decode_wrenches
+from msg_adapters.series import JointStateSeries, WrenchSeries
+
 from . import msgdefs
-from .cdr_arrays import decode_joint_states, decode_wrenches
 from .qos import OBSERVATION_QOS, OfferedQos, as_qos_list, parse_qos_list, qos_list_to_yaml
-from .series import JointStateSeries, WrenchSeries
 
 METADATA_FILENAME = 'metadata.yaml'
 METADATA_VERSION = 9
@@ -209,7 +210,12 @@ def _directory_size(folder: Path) -> int:
 
 
 def read_metadata_yaml(folder: str | os.PathLike) -> BagInfo:
-    """Parse ``<folder>/metadata.yaml`` (versions 4..9)."""
+    """Parse ``<folder>/metadata.yaml`` (versions 4..9).
+
+    Fields that older versions lack (type hash, per-file list, ROS distro, custom data,
+    compression) read as empty, as rosbag2's own reader reads them; anything else missing or
+    malformed is a :class:`BagError`.
+    """
     folder = Path(folder)
     path = folder / METADATA_FILENAME
     try:
@@ -434,6 +440,8 @@ def storage_files(path: str | os.PathLike) -> list[Path]:
         raise BagError(f'bag path {path} does not exist')
     if path.is_file():
         return [path]
+    # Without metadata.yaml (an interrupted recording, which `reindex` repairs) the folder's
+    # MCAP files are the bag, in rosbag2's split order (<name>_0.mcap, <name>_1.mcap, ...).
     if (path / METADATA_FILENAME).is_file():
         info = read_metadata_yaml(path)
         files = [path / Path(p).name for p in info.relative_file_paths]
@@ -485,22 +493,29 @@ def _read_file_summary(path: Path) -> _FileSummary:
             t = topics[channel.topic]
             topics[channel.topic] = replace(t, message_count=t.message_count + count)
             continue
+        # Channel metadata is optional in MCAP (writers other than rosbag2 may leave it out):
+        # no QoS and no type hash then. Present but unreadable is an error.
         meta = channel.metadata or {}
         try:
             offered = parse_qos_list(meta.get('offered_qos_profiles'))
-        except (yaml.YAMLError, TypeError, ValueError, AttributeError):
-            offered = ()
+        except (yaml.YAMLError, TypeError, ValueError, AttributeError) as exc:
+            raise BagError(f'{path}: topic {channel.topic}: unreadable offered_qos_profiles '
+                           f'in the channel metadata ({exc!r})') from None
         topics[channel.topic] = TopicInfo(
             name=channel.topic, type=schema.name if schema else '',
             serialization_format=channel.message_encoding, offered_qos=offered,
             type_hash=meta.get('topic_type_hash', ''), message_count=count)
     ros_distro, custom = '', {}
     if records:
+        # rosbag2 writes the record with ``serialized_metadata`` (the bag metadata as YAML)
+        # and ``ROS_DISTRO``; older rosbag2 versions wrote only the distro, so an absent or
+        # empty ``serialized_metadata`` means "no custom data", a malformed one is an error.
         meta = records[-1].metadata
         try:
             parsed = yaml.safe_load(meta.get('serialized_metadata', '')) or {}
-        except yaml.YAMLError:
-            parsed = {}
+        except yaml.YAMLError as exc:
+            raise BagError(f'{path}: unreadable serialized_metadata in the rosbag2 metadata '
+                           f'record ({exc!r})') from None
         ros_distro = str(parsed.get('ros_distro') or meta.get('ROS_DISTRO', '') or '')
         custom = {str(k): str(v) for k, v in (parsed.get('custom_data') or {}).items()}
     start, end = int(stats.message_start_time), int(stats.message_end_time)
@@ -580,7 +595,7 @@ def read_bag(path: str | os.PathLike,
 def read_arrays(path: str | os.PathLike, topic: str) -> JointStateSeries | WrenchSeries:
     """All messages of one JointState or WrenchStamped topic as stacked arrays.
 
-    Decoding is vectorised over messages that share a layout (``nmt_ros.io.cdr_arrays``).
+    Decoding is vectorised over messages that share a layout (``msg_adapters.cdr_arrays``).
     """
     blobs: list[bytes] = []
     log_times: list[int] = []
@@ -665,7 +680,11 @@ def _salvage(path: Path, compression: str) -> int:
                         last_rosbag2 = dict(record.metadata)
                     else:
                         writer.add_metadata(record.name, dict(record.metadata))
-        except Exception:  # noqa: BLE001 - any damaged record (CRC, codec) ends the salvage
+        except Exception:  # noqa: BLE001 - deliberate: see below
+            # The salvage keeps every record read before the first damaged one and drops the
+            # rest, as `ros2 bag reindex` does: which exception the reader raises depends on
+            # the damage (CRC mismatch, a codec error inside a chunk, a short read), so all
+            # of them end the loop. The loss is reported by the message count (kept).
             pass
         if not started:
             writer.start(profile=PROFILE, library=LIBRARY)
@@ -697,6 +716,8 @@ def reindex(path: str | os.PathLike, *, compression: str = 'zstd') -> BagInfo:
         return _info_from_files(path, files, [str(path)], path.stat().st_size)
     info = _info_from_files(path, files, [f.name for f in files], 0)
     if not info.ros_distro:
+        # The rosbag2 record (which names the distro) went with the damaged tail, and
+        # metadata.yaml needs one: the distro this package records with (Jazzy).
         info = replace(info, ros_distro=ROS_DISTRO)
     write_metadata_yaml(path, info)
     return replace(info, bag_size=_directory_size(path))

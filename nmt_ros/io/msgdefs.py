@@ -59,7 +59,12 @@ def get_message_class(type_name: str) -> type:
 
 
 def share_prefixes() -> list[Path]:
-    """Install prefixes searched for ``share/<pkg>/msg``: AMENT_PREFIX_PATH, then sys.prefix."""
+    """Install prefixes searched for ``share/<pkg>/msg``: AMENT_PREFIX_PATH, then sys.prefix.
+
+    sys.prefix is searched too because the ROS wheels install their ``.msg`` files under the
+    venv's ``share/``, which a process started outside ``make``/``nmt`` (no
+    ``AMENT_PREFIX_PATH``) must still find; the environment variable comes first.
+    """
     prefixes = [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
     if Path(sys.prefix) not in prefixes:
         prefixes.append(Path(sys.prefix))
@@ -134,16 +139,22 @@ def full_definition(type_name: str) -> str:
 
 @functools.cache
 def type_hash(type_name: str) -> str:
-    """REP-2011 type hash ``RIHS01_<hex>`` of ``type_name``, or ``''`` when unavailable."""
+    """REP-2011 type hash ``RIHS01_<hex>`` of ``type_name``, or ``''`` when the installed
+    message package has no type description.
+
+    The ``.json`` type descriptions exist from ROS 2 Iron on; a package without them has no
+    hash, and rosbag2 then writes an empty ``topic_type_hash`` too. A description that exists
+    but cannot be read or does not describe ``type_name`` is an error (ValueError).
+    """
     name = normalize_type_name(type_name)
     path = _find_share_file(name, '.json')
     if path is None:
         return ''
     try:
-        hashes = json.loads(path.read_text(encoding='utf-8')).get('type_hashes', [])
-    except (OSError, ValueError):
-        return ''
+        hashes = json.loads(path.read_text(encoding='utf-8'))['type_hashes']
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f'unreadable type description {path}: {exc!r}') from None
     for entry in hashes:
-        if entry.get('type_name') == name:
-            return str(entry.get('hash_string', ''))
-    return ''
+        if entry.get('type_name') == name and entry.get('hash_string'):
+            return str(entry['hash_string'])
+    raise ValueError(f'type description {path} has no hash for {name}')

@@ -154,10 +154,6 @@ def write_table(path: str | Path, time: np.ndarray, labels: Sequence[str], data:
     return path
 
 
-write_sto = write_table
-write_mot = write_table
-
-
 # ---------------------------------------------------------------------------------------------
 # ground reaction files
 # ---------------------------------------------------------------------------------------------

@@ -28,15 +28,11 @@ import numpy as np
 
 from msg_adapters.joint_state import joint_states_from_arrays
 from msg_adapters.wrench import wrenches_from_arrays
+from nmt_ros import topics
 from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
+from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
-from nmt_ros.study.trial import TRIAL_EPOCH_NS, Observations, Truth
-
-ANGLES_TOPIC = '/mocap/segment_angles'
-WRENCH_TOPIC = '/force_plate/wrench'
-WRENCH_FRAME = 'foot_com'
-JOINT_STATE = 'sensor_msgs/msg/JointState'
-WRENCH_STAMPED = 'geometry_msgs/msg/WrenchStamped'
+from nmt_ros.records import TRIAL_EPOCH_NS, Observations, TrialEstimates, Truth
 
 
 def to_stamps_ns(t: np.ndarray, epoch_ns: int = TRIAL_EPOCH_NS) -> np.ndarray:
@@ -58,9 +54,10 @@ def trial_messages(obs: Observations, truth: Truth | None = None,
     out: list[tuple[str, np.ndarray, list]] = []
     sa = to_stamps_ns(obs.t_angles, epoch_ns)
     sw = to_stamps_ns(obs.t_wrench, epoch_ns)
-    out.append((ANGLES_TOPIC, sa, joint_states_from_arrays(sa, SEGMENTS, position=obs.angles)))
+    out.append((topics.MOCAP_SEGMENT_ANGLES, sa,
+                joint_states_from_arrays(sa, SEGMENTS, position=obs.angles)))
     f, tq = _wrench_arrays(obs.wrench)
-    out.append((WRENCH_TOPIC, sw, wrenches_from_arrays(sw, obs.frame_id, f, tq)))
+    out.append((topics.FORCE_PLATE_WRENCH, sw, wrenches_from_arrays(sw, obs.frame_id, f, tq)))
     if truth is not None:
         from nmt_ros.model.jumper import default_model
         model = default_model()
@@ -71,23 +68,24 @@ def trial_messages(obs: Observations, truth: Truth | None = None,
         vmt, = model.batch(model.musculotendon_velocities, theta, theta_dot)
         tf_, tt = _wrench_arrays(truth.s)
         out += [
-            ('/truth/segment_angles', st, joint_states_from_arrays(
+            (topics.TRUTH_SEGMENT_ANGLES, st, joint_states_from_arrays(
                 st, SEGMENTS, position=truth.q[:, :4], velocity=truth.qd[:, :4])),
-            ('/truth/generalized_coordinates', st, joint_states_from_arrays(
+            (topics.TRUTH_GENERALIZED_COORDINATES, st, joint_states_from_arrays(
                 st, Q_NAMES, position=truth.q, velocity=truth.qd)),
-            ('/truth/joint_torques', st, joint_states_from_arrays(
+            (topics.TRUTH_JOINT_TORQUES, st, joint_states_from_arrays(
                 st, JOINTS, position=theta, velocity=theta_dot, effort=truth.tau)),
-            ('/truth/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, tf_, tt)),
+            (topics.TRUTH_GROUND_WRENCH, st,
+             wrenches_from_arrays(st, topics.WRENCH_FRAME, tf_, tt)),
         ]
-        out += _muscle_topics(('/truth/muscle_forces', '/truth/muscle_activations',
-                               '/truth/muscle_excitations'), st, lmt, vmt, truth.f, truth.a,
+        out += _muscle_topics((topics.TRUTH_MUSCLE_FORCES, topics.TRUTH_MUSCLE_ACTIVATIONS,
+                               topics.TRUTH_MUSCLE_EXCITATIONS), st, lmt, vmt, truth.f, truth.a,
                               truth.u)
     if components is not None:
         bf, bt = _wrench_arrays(components['wrench_bias'])
         out += [
-            ('/truth/mocap_bias', sa, joint_states_from_arrays(
+            (topics.TRUTH_MOCAP_BIAS, sa, joint_states_from_arrays(
                 sa, SEGMENTS, position=components['angle_bias'])),
-            ('/truth/force_plate_bias', sw, wrenches_from_arrays(sw, obs.frame_id, bf, bt)),
+            (topics.TRUTH_FORCE_PLATE_BIAS, sw, wrenches_from_arrays(sw, obs.frame_id, bf, bt)),
         ]
     return _time_ordered(out)
 
@@ -138,8 +136,8 @@ def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> O
     Trial time 0 is ``nmt.trial_epoch_ns`` when the bag says so, else the first stamp.
     """
     path = Path(path)
-    ang = read_arrays(path, ANGLES_TOPIC)
-    wr = read_arrays(path, WRENCH_TOPIC)
+    ang = read_arrays(path, topics.MOCAP_SEGMENT_ANGLES)
+    wr = read_arrays(path, topics.FORCE_PLATE_WRENCH)
     if epoch_ns is None:
         epoch_ns = int(_custom(path).get('nmt.trial_epoch_ns',
                                          min(ang.stamp_ns[0], wr.stamp_ns[0])))
@@ -152,7 +150,7 @@ def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> O
 
 def has_truth(path: str | os.PathLike) -> bool:
     names = {t.name for t in bag_info(path).topics}
-    return '/truth/generalized_coordinates' in names
+    return topics.TRUTH_GENERALIZED_COORDINATES in names
 
 
 def read_truth(path: str | os.PathLike) -> Truth:
@@ -160,7 +158,7 @@ def read_truth(path: str | os.PathLike) -> Truth:
     path = Path(path)
     custom = _custom(path)
     epoch_ns = int(custom.get('nmt.trial_epoch_ns', TRIAL_EPOCH_NS))
-    gc = read_arrays(path, '/truth/generalized_coordinates')
+    gc = read_arrays(path, topics.TRUTH_GENERALIZED_COORDINATES)
     t = (gc.stamp_ns - epoch_ns) * 1e-9
     q = np.column_stack([gc.column(n) for n in Q_NAMES])
     qd = np.column_stack([gc.column(n, 'velocity') for n in Q_NAMES])
@@ -169,13 +167,13 @@ def read_truth(path: str | os.PathLike) -> Truth:
         js = read_arrays(path, topic)
         return np.column_stack([js.column(n, field) for n in MUSCLES])
 
-    jt = read_arrays(path, '/truth/joint_torques')
-    gw = read_arrays(path, '/truth/ground_wrench')
+    jt = read_arrays(path, topics.TRUTH_JOINT_TORQUES)
+    gw = read_arrays(path, topics.TRUTH_GROUND_WRENCH)
     return Truth(
         t=t, q=q, qd=qd, qdd=np.gradient(qd, t, axis=0),
-        a=muscles('/truth/muscle_activations', 'position'),
-        u=muscles('/truth/muscle_excitations', 'position'),
-        f=muscles('/truth/muscle_forces', 'effort'),
+        a=muscles(topics.TRUTH_MUSCLE_ACTIVATIONS, 'position'),
+        u=muscles(topics.TRUTH_MUSCLE_EXCITATIONS, 'position'),
+        f=muscles(topics.TRUTH_MUSCLE_FORCES, 'effort'),
         tau=np.column_stack([jt.column(n, 'effort') for n in JOINTS]),
         s=np.column_stack([gw.force[:, 0], gw.force[:, 1], gw.torque[:, 2]]),
         point_forces=np.full((t.size, 2, 2), np.nan),
@@ -183,46 +181,45 @@ def read_truth(path: str | os.PathLike) -> Truth:
         liftoff_s=float(custom['nmt.liftoff_s']), info={'epoch_ns': epoch_ns})
 
 
-def estimate_messages(model: object, run: object, epoch_ns: int = TRIAL_EPOCH_NS,
-                      ) -> list[tuple[str, int, object]]:
-    """The /nmt/* estimate topics of a batch NMT run, stamped with observation time."""
+def estimate_messages(model: JumperModel, estimates: TrialEstimates,
+                      epoch_ns: int = TRIAL_EPOCH_NS) -> list[tuple[str, int, object]]:
+    """The /nmt/* estimate topics of a batch run, stamped with observation time."""
     out = []
-    skt = run.skt
+    skt = estimates.stage1
     st = to_stamps_ns(skt.t, epoch_ns)
     theta, = model.batch(model.joint_angles, skt.q)
     theta_dot, = model.batch(model.joint_angles, skt.qd)
     f, tq = _wrench_arrays(skt.s)
     out += [
-        ('/nmt/skeletal/joint_torques', st, joint_states_from_arrays(
+        (topics.SKELETAL_JOINT_TORQUES, st, joint_states_from_arrays(
             st, JOINTS, position=theta, velocity=theta_dot, effort=skt.tau)),
-        ('/nmt/skeletal/segment_angles', st, joint_states_from_arrays(
+        (topics.SKELETAL_SEGMENT_ANGLES, st, joint_states_from_arrays(
             st, SEGMENTS, position=skt.q[:, :4], velocity=skt.qd[:, :4])),
-        ('/nmt/skeletal/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, f, tq)),
+        (topics.SKELETAL_GROUND_WRENCH, st,
+         wrenches_from_arrays(st, topics.WRENCH_FRAME, f, tq)),
     ]
-    ivd = run.ivd
-    si = to_stamps_ns(ivd.t, epoch_ns)
-    out.append(('/nmt/ivd/joint_torques', si, joint_states_from_arrays(
-        si, JOINTS, effort=ivd.tau)))
-    if run.stage2 is not None:
-        s2 = run.stage2
+    si = to_stamps_ns(estimates.ivd_t, epoch_ns)
+    out.append((topics.IVD_JOINT_TORQUES, si, joint_states_from_arrays(
+        si, JOINTS, effort=estimates.ivd_tau)))
+    if estimates.muscles is not None:
+        s2 = estimates.muscles
         ss = to_stamps_ns(s2.t, epoch_ns)
         keep = np.searchsorted(skt.t, s2.t - 1e-12)   # Stage 2 runs on the Stage-1 grid
         th = theta[keep]
         lmt, = model.batch(model.musculotendon_lengths, th)
         vmt, = model.batch(model.musculotendon_velocities, th, theta_dot[keep])
-        out += _muscle_topics(('/nmt/muscle/forces', '/nmt/muscle/activations',
-                               '/nmt/muscle/excitations'), ss, lmt, vmt, s2.f, s2.a, s2.u)
+        out += _muscle_topics(topics.MUSCLE_OUTPUTS, ss, lmt, vmt, s2.f, s2.a, s2.u)
     return _time_ordered(out)
 
 
-def write_estimates_bag(path: str | os.PathLike, model: object, run: object,
+def write_estimates_bag(path: str | os.PathLike, model: JumperModel, estimates: TrialEstimates,
                         epoch_ns: int = TRIAL_EPOCH_NS, custom_data: dict | None = None,
                         ) -> BagInfo:
-    """A batch NMT run's estimates as a bag folder (topics of ``estimate_messages``)."""
+    """A batch run's estimates as a bag folder (topics of ``estimate_messages``)."""
     data = {'nmt.trial_epoch_ns': str(epoch_ns)}
     data.update({k: v if isinstance(v, str) else json.dumps(v)
                  for k, v in (custom_data or {}).items()})
     with BagWriter(path, custom_data=data, flush_period_s=None) as bag:
-        for topic, stamp, msg in estimate_messages(model, run, epoch_ns):
+        for topic, stamp, msg in estimate_messages(model, estimates, epoch_ns):
             bag.write(topic, msg, stamp, stamp)
     return bag_info(path)

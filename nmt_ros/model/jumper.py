@@ -105,11 +105,9 @@ class JumperModel:
                                                                          m_inv_t)],
                                 ['q', 'qd', 'x0'], ['F', 'G'])
         # Exact output Jacobians for Eq. 4 (ds/dQ) and for the trackers.
-        Q = ca.vertcat(q, qd)
         self.contact_outputs_jacobian = F(
             'ds_dQ', [q, qd, x0], [s, ca.jacobian(s, q), ca.jacobian(s, qd)],
             ['q', 'qd', 'x0'], ['s', 'ds_dq', 'ds_dqd'])
-        del Q
 
         # Muscles (only if paths are present in the data file).
         self.has_muscles = set(p.muscles.paths) == set(p.muscles.names)

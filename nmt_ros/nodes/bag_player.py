@@ -34,6 +34,7 @@ from nmt_ros.io.bags import TopicInfo
 from nmt_ros.io.msgdefs import get_message_class
 from nmt_ros.io.qos import INFINITE_DURATION, OBSERVATION_QOS, OfferedQos
 from nmt_ros.io.replay import CLOCK, ReplayScheduler
+from nmt_ros.topics import CLOCK as CLOCK_TOPIC
 
 CLOCK_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                        reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -94,7 +95,7 @@ class BagPlayer:
 
     def __init__(self, node: Node, topics: Iterable[TopicInfo], *,
                  qos_override: QoSProfile | None = None, publish_clock: bool = False,
-                 clock_topic: str = '/clock') -> None:
+                 clock_topic: str = CLOCK_TOPIC) -> None:
         self.node = node
         self.publishers = {}
         for topic in topics:

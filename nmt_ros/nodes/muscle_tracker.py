@@ -7,7 +7,7 @@ mode): a window of length ``window_length_s`` (H) is planned (backward Riccati/a
 as soon as the torques up to its end are in, and applied over ``window_stride_s``. The
 estimate for instant t is therefore available once Stage 1 reached t + H; its latency is the
 skeletal tracker's plus H plus up to a stride. Joint accelerations are central differences
-of the received joint rates (``nmt_ros.nodes._streams``).
+of the received joint rates (``nmt_ros.tracking.streaming``).
 
 Publishes, stamped with the observation instant of the torque sample they belong to:
 ``/nmt/muscle/forces`` (JointState [gmax, ilpso, hams, bfsh, rf, vas, gas, sol, ta]:
@@ -27,24 +27,28 @@ from sensor_msgs.msg import JointState
 from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
 from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, MUSCLES
-from nmt_ros.nodes._core import ERROR, WARN, Sample
-from nmt_ros.nodes._ros import TrackerNode, run_node
-from nmt_ros.nodes._streams import Stage2Output, Stage2Runner
+from nmt_ros.nodes.input_gate import Sample
+from nmt_ros.nodes.node_base import TrackerNode
+from nmt_ros.nodes.node_status import ERROR, WARN
+from nmt_ros.nodes.runtime import run_node
+from nmt_ros.topics import (
+    MUSCLE_ACTIVATIONS,
+    MUSCLE_EXCITATIONS,
+    MUSCLE_FORCES,
+    MUSCLE_OUTPUTS,
+    SKELETAL_JOINT_TORQUES,
+)
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
+from nmt_ros.tracking.streaming import Stage2Output, Stage2Stream
 
 NODE_NAME = 'muscle_tracker'
-TORQUES_TOPIC = '/nmt/skeletal/joint_torques'
-FORCES_TOPIC = '/nmt/muscle/forces'
-ACTIVATIONS_TOPIC = '/nmt/muscle/activations'
-EXCITATIONS_TOPIC = '/nmt/muscle/excitations'
-OUTPUT_TOPICS = (FORCES_TOPIC, ACTIVATIONS_TOPIC, EXCITATIONS_TOPIC)
 
 
 class MuscleTrackerNode(TrackerNode):
     """Stage 2 as a node (see the module docstring)."""
 
-    INPUTS = {TORQUES_TOPIC: JointState}
-    OUTPUTS = dict.fromkeys(OUTPUT_TOPICS, JointState)
+    INPUTS = {SKELETAL_JOINT_TORQUES: JointState}
+    OUTPUTS = dict.fromkeys(MUSCLE_OUTPUTS, JointState)
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -69,9 +73,9 @@ class MuscleTrackerNode(TrackerNode):
         self.model = default_model()
         self.tracker = NeuromuscularTracker(
             self.model, load_stage2_settings(saturation=self.saturation))
-        self.runner = Stage2Runner(self.model, self.tracker, self.window_length_s, stride,
+        self.stream = Stage2Stream(self.model, self.tracker, self.window_length_s, stride,
                                    self.input_rate_hz)
-        self.gates = self.stream_gates({TORQUES_TOPIC: 1 / self.input_rate_hz})
+        self.gates = self.stream_gates({SKELETAL_JOINT_TORQUES: 1 / self.input_rate_hz})
         self.received_at: dict[int, float] = {}
         self.create_timer(self.process_period_s, self.process)
         self.listen()
@@ -86,15 +90,10 @@ class MuscleTrackerNode(TrackerNode):
              received: float) -> None:
         for s in samples:
             v = s.values
-            self.runner.add(s.stamp_ns, self._grid_time(s.stamp_ns), v[0:3], v[3:6], v[6:9])
+            self.stream.add(s.stamp_ns, self.clock.t(s.stamp_ns), v[0:3], v[3:6], v[6:9])
         self.received_at[stamp_ns] = received
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
         self._check_end()
-
-    def _grid_time(self, stamp_ns: int) -> float:
-        """Trial time snapped to the nominal grid k / input_rate_hz (stamps are rounded to
-        the nanosecond; Stage 2 joins its windows on an exactly uniform grid)."""
-        return round(self.clock.t(stamp_ns) * self.input_rate_hz) / self.input_rate_hz
 
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
@@ -104,16 +103,16 @@ class MuscleTrackerNode(TrackerNode):
         if not self.tracking:
             return
         try:
-            out = self.runner.process(final=final)
+            out = self.stream.process(final=final)
         except Exception as exc:  # noqa: BLE001 - report, drop the trial, keep running
             self.status.error = f'Stage 2 failed: {exc!r}'
             self.status.event(ERROR, self.status.error)
-            self.runner.finished = True
+            self.stream.finished = True
             self.notify(0.0)
             return
-        if self.runner.problem:
-            self.status.event(WARN, self.runner.problem)
-            self.runner.problem = None
+        if self.stream.problem:
+            self.status.event(WARN, self.stream.problem)
+            self.stream.problem = None
         self._publish(out)
 
     def flush(self) -> None:
@@ -125,10 +124,10 @@ class MuscleTrackerNode(TrackerNode):
             return
         stamps = out.stamp_ns
         self.publish_batches(stamps, {
-            FORCES_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.l_mt,
+            MUSCLE_FORCES: joint_states_from_arrays(stamps, MUSCLES, position=out.l_mt,
                                                    velocity=out.v_mt, effort=out.f),
-            ACTIVATIONS_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.a),
-            EXCITATIONS_TOPIC: joint_states_from_arrays(stamps, MUSCLES, position=out.u),
+            MUSCLE_ACTIVATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.a),
+            MUSCLE_EXCITATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.u),
         })
         now = time.monotonic()
         for s in stamps.tolist():

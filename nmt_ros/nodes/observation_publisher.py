@@ -24,12 +24,13 @@ import time
 from msg_adapters.cdr_header import header_stamp_ns
 from msg_adapters.diagnostics import ERROR
 from nmt_ros.io.bags import BagError, bag_info, read_raw
-from nmt_ros.nodes._core import missing_subscribers
-from nmt_ros.nodes._ros import NmtNode, data_qos, run_node
 from nmt_ros.nodes.bag_player import BagPlayer
+from nmt_ros.nodes.node_base import NmtNode, data_qos
+from nmt_ros.nodes.readiness import missing_subscribers
+from nmt_ros.nodes.runtime import run_node
+from nmt_ros.topics import OBSERVATIONS
 
 NODE_NAME = 'observation_publisher'
-OBSERVATION_TOPICS = ['/mocap/segment_angles', '/force_plate/wrench']
 DEFAULT_BAG = Path(__file__).resolve().parents[2] / 'bags' / 'reference_jump'
 
 
@@ -57,7 +58,7 @@ class ObservationPublisherNode(NmtNode):
                      'bags/reference_jump of the source tree)') or str(DEFAULT_BAG)
         self.rate = p('rate', 1.0, 'replay speed factor (2 = twice real time)', low=0.001,
                       high=1000.0)
-        self.topics = p('topics', list(OBSERVATION_TOPICS), 'topics to replay')
+        self.topics = p('topics', list(OBSERVATIONS), 'topics to replay')
         self.publish_clock = p('publish_clock', False, 'publish /clock with the bag time')
         self.clock_hz = p('clock_hz', 100.0, '/clock rate (wall clock) [Hz]', low=0.1,
                           high=10000.0)

@@ -27,7 +27,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from nmt_ros.io.bags import BagWriter
 from nmt_ros.io.msgdefs import get_message_class
 from nmt_ros.io.qos import OfferedQos
-from nmt_ros.nodes._ros import NmtNode, run_node
+from nmt_ros.nodes.node_base import NmtNode
+from nmt_ros.nodes.runtime import run_node
 
 NODE_NAME = 'recorder'
 

@@ -3,9 +3,10 @@
 Subscribes ``/mocap/segment_angles`` (JointState [foot, shank, thigh, hat], position) and
 ``/force_plate/wrench`` (WrenchStamped in ``wrench_frame``), filters them with a fixed
 look-ahead (``lookahead_s``: the estimate for instant t is computed once data up to
-t + lookahead_s has arrived) and steps Stage 1 (``Stage1Stream``, the batch tracker's code)
-after each arrival. Publishes, stamped with the observation instant (the force-plate
-samples k / wrench_rate_hz from the trial start):
+t + lookahead_s has arrived) and steps Stage 1 after each arrival
+(``nmt_ros.tracking.streaming.Stage1Stream``, the batch tracker's code). Publishes, stamped
+with the observation instant (the force-plate samples k / wrench_rate_hz from the trial
+start):
 
 - ``/nmt/skeletal/joint_torques``: JointState [ankle, knee, hip], position/velocity = OpenSim
   joint angle/rate, effort = torque [N m] (as ``/truth/joint_torques``);
@@ -34,28 +35,32 @@ from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
 from msg_adapters.planar import from_planar_wrench, planar_wrenches_from_arrays
 from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
-from nmt_ros.nodes._core import ERROR, Sample, TrialClock
-from nmt_ros.nodes._ros import TrackerNode, run_node
-from nmt_ros.nodes._streams import Stage1Output, Stage1Runner
+from nmt_ros.nodes.input_gate import Sample, TrialClock
+from nmt_ros.nodes.node_base import TrackerNode
+from nmt_ros.nodes.node_status import ERROR
+from nmt_ros.nodes.runtime import run_node
+from nmt_ros.topics import (
+    FORCE_PLATE_WRENCH,
+    MOCAP_SEGMENT_ANGLES,
+    SKELETAL_GENERALIZED_COORDINATES,
+    SKELETAL_GROUND_WRENCH,
+    SKELETAL_JOINT_TORQUES,
+    SKELETAL_SEGMENT_ANGLES,
+    WRENCH_FRAME,
+)
 from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.streaming import Stage1Output, Stage1Stream
 
 NODE_NAME = 'skeletal_tracker'
-ANGLES_TOPIC = '/mocap/segment_angles'
-WRENCH_TOPIC = '/force_plate/wrench'
-TORQUES_TOPIC = '/nmt/skeletal/joint_torques'
-SEGMENTS_TOPIC = '/nmt/skeletal/segment_angles'
-COORDS_TOPIC = '/nmt/skeletal/generalized_coordinates'
-GROUND_TOPIC = '/nmt/skeletal/ground_wrench'
-OUTPUT_TOPICS = (TORQUES_TOPIC, SEGMENTS_TOPIC, COORDS_TOPIC, GROUND_TOPIC)
 
 
 class SkeletalTrackerNode(TrackerNode):
     """Stage 1 as a node (see the module docstring)."""
 
-    INPUTS = {ANGLES_TOPIC: JointState, WRENCH_TOPIC: WrenchStamped}
-    OUTPUTS = {TORQUES_TOPIC: JointState, SEGMENTS_TOPIC: JointState, COORDS_TOPIC: JointState,
-               GROUND_TOPIC: WrenchStamped}
+    INPUTS = {MOCAP_SEGMENT_ANGLES: JointState, FORCE_PLATE_WRENCH: WrenchStamped}
+    OUTPUTS = {SKELETAL_JOINT_TORQUES: JointState, SKELETAL_SEGMENT_ANGLES: JointState,
+               SKELETAL_GENERALIZED_COORDINATES: JointState, SKELETAL_GROUND_WRENCH: WrenchStamped}
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -82,7 +87,7 @@ class SkeletalTrackerNode(TrackerNode):
         self.max_force_error_bw = p('max_force_error_bw', SKTSettings().max_force_error_bw,
                                     'loss of control: vertical force error above this [BW]',
                                     low=0.0, high=100.0)
-        self.wrench_frame = p('wrench_frame', 'foot_com', "required header.frame_id of the "
+        self.wrench_frame = p('wrench_frame', WRENCH_FRAME, "required header.frame_id of the "
                               "force-plate wrench ('' = any)")
         self.epoch_ns = p('epoch_ns', 0, 'header stamp of trial time 0 [ns] (0 = the first '
                           'observation received)', low=0, high=2**62)
@@ -106,11 +111,12 @@ class SkeletalTrackerNode(TrackerNode):
 
         # the numerical core (built before any input is accepted)
         self.model = default_model()
-        self.runner = Stage1Runner(self.model, self.settings, self.conditioning,
-                                   self.angle_rate_hz, self.wrench_rate_hz)
+        self.stream = Stage1Stream(self.model, self.settings, self.conditioning,
+                                   angle_rate_hz=self.angle_rate_hz,
+                                   wrench_rate_hz=self.wrench_rate_hz)
         self.clock = TrialClock(self.epoch_ns)
-        self.gates = self.stream_gates({ANGLES_TOPIC: 1 / self.angle_rate_hz,
-                                        WRENCH_TOPIC: 1 / self.wrench_rate_hz})
+        self.gates = self.stream_gates({MOCAP_SEGMENT_ANGLES: 1 / self.angle_rate_hz,
+                                        FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz})
         self.polled_until = -np.inf
         self.first_pending = np.inf
         self.create_timer(self.poll_period_s, self.poll)
@@ -118,31 +124,31 @@ class SkeletalTrackerNode(TrackerNode):
 
     # ------------------------------------------------------------------ inputs
     def parse(self, topic: str, msg: JointState | WrenchStamped) -> tuple[int, np.ndarray]:
-        if topic == ANGLES_TOPIC:
+        if topic == MOCAP_SEGMENT_ANGLES:
             sample = from_joint_state(msg, SEGMENTS, require=('position',))
             return sample.stamp_ns, sample.position
         return from_planar_wrench(msg, self.wrench_frame or None)
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
              received: float) -> None:
-        if self.runner.status != 'ok':
+        if self.stream.status != 'ok':
             return
-        add = self.runner.add_angles if topic == ANGLES_TOPIC else self.runner.add_wrench
+        add = self.stream.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.stream.add_wrench
         for sample in samples:
             add(self.clock.t(sample.stamp_ns), sample.values)
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
         self.first_pending = min(self.first_pending, received)
-        if self.runner.final_until - self.polled_until >= self.poll_min_s:
+        if self.stream.final_until - self.polled_until >= self.poll_min_s:
             self.poll()
         self._check_end()
 
     def poll(self) -> None:
         """Step Stage 1 over everything that became final; publish."""
-        if not self.tracking or self.runner.final_until <= self.polled_until:
+        if not self.tracking or self.stream.final_until <= self.polled_until:
             return
-        self.polled_until = self.runner.final_until
+        self.polled_until = self.stream.final_until
         received, self.first_pending = self.first_pending, np.inf
-        self._publish(self.runner.poll(), received)
+        self._publish(self.stream.poll(), received)
 
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
@@ -151,15 +157,15 @@ class SkeletalTrackerNode(TrackerNode):
         self.status.extra['epoch_ns'] = epoch_ns
 
     def flush(self) -> None:
-        self._publish(self.runner.finish(), time.monotonic())
+        self._publish(self.stream.finish(), time.monotonic())
 
     def end_state(self) -> str:
-        return 'lost_control' if self.runner.status != 'ok' else 'finished'
+        return 'lost_control' if self.stream.status != 'ok' else 'finished'
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, out: Stage1Output | None, received: float) -> None:
-        if self.runner.status != 'ok' and self.status.state != 'lost_control':
-            ev = self.runner.events[0] if self.runner.events else {}
+        if self.stream.status != 'ok' and self.status.state != 'lost_control':
+            ev = self.stream.events[0] if self.stream.events else {}
             self.status.state = 'lost_control'
             self.status.error = (f'loss of control at t = {ev.get("t", float("nan")):.4f} s: '
                                  f'{ev.get("reason", "?")}')
@@ -168,25 +174,23 @@ class SkeletalTrackerNode(TrackerNode):
             self.publish_status()
         if out is None or out.t.size == 0:
             return
-        m = self.model
         stamps = self.clock.stamps(out.t)
-        theta, = m.batch(m.joint_angles, out.q)
-        theta_dot, = m.batch(m.joint_angles, out.qd)
         self.publish_batches(stamps, {
-            TORQUES_TOPIC: joint_states_from_arrays(stamps, JOINTS, position=theta,
-                                                    velocity=theta_dot, effort=out.tau),
-            SEGMENTS_TOPIC: joint_states_from_arrays(stamps, SEGMENTS, position=out.q[:, :4],
-                                                     velocity=out.qd[:, :4]),
-            COORDS_TOPIC: joint_states_from_arrays(stamps, Q_NAMES, position=out.q,
-                                                   velocity=out.qd),
-            GROUND_TOPIC: planar_wrenches_from_arrays(stamps, 'foot_com', out.s),
+            SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
+                stamps, JOINTS, position=out.joint_angles, velocity=out.joint_rates,
+                effort=out.tau),
+            SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
+                stamps, SEGMENTS, position=out.q[:, :4], velocity=out.qd[:, :4]),
+            SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
+                stamps, Q_NAMES, position=out.q, velocity=out.qd),
+            SKELETAL_GROUND_WRENCH: planar_wrenches_from_arrays(stamps, WRENCH_FRAME, out.s),
         })
         if np.isfinite(received):
             self.status.delay(time.monotonic() - received)
 
     def status_values(self) -> None:
         super().status_values()
-        self.status.extra['final_until_s'] = float(self.runner.final_until)
+        self.status.extra['final_until_s'] = float(self.stream.final_until)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -10,7 +10,6 @@ and moment arms are ``r_j = -d l_MT / d q_j``.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -137,26 +136,3 @@ def opensim_coordinates_from_q(q: np.ndarray) -> np.ndarray:
     q = np.atleast_2d(np.asarray(q, dtype=float))
     th1, th2, th3, th4, r1, r2 = (q[:, i] for i in range(6))
     return np.column_stack([th1, r1, r2, th1 - th2, th2 - th3, th3 - th4])
-
-
-def segment_poses(coords: Sequence[float], data: dict) -> dict[str, tuple[float, np.ndarray]]:
-    """Hand-computed planar kinematics: body -> (absolute angle, frame origin in ground).
-
-    ``coords`` in EXPORT_COORDINATES order. Frame origins: foot at the ankle, shank at the
-    knee, thigh and hat at the hip (the data file's segment frames).
-    """
-    tilt, tx, ty, ankle, knee, hip = (float(v) for v in coords)
-    th1 = tilt
-    th2 = th1 - ankle
-    th3 = th2 - knee
-    th4 = th3 - hip
-
-    def rot(th: float) -> np.ndarray:
-        return np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-
-    seg = data['segments']
-    ankle_pos = np.array([tx, ty])
-    knee_pos = ankle_pos - rot(th2) @ np.asarray(seg['shank']['distal_joint'], dtype=float)
-    hip_pos = knee_pos - rot(th3) @ np.asarray(seg['thigh']['distal_joint'], dtype=float)
-    return {'foot': (th1, ankle_pos), 'shank': (th2, knee_pos), 'thigh': (th3, hip_pos),
-            'hat': (th4, hip_pos)}

@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nmt_ros.model.parameters import MUSCLES, SEGMENTS  # noqa: E402
-from nmt_ros.study.trial import Observations, Truth  # noqa: E402
+from nmt_ros.records import Observations, Truth  # noqa: E402
 
 MUSCLE_LABELS = ('GMAX', 'ILPSO', 'HAMS', 'BFSH', 'RF', 'VAS', 'GAS', 'SOL', 'TA')
 SEGMENT_LABELS = ('Foot', 'Shank', 'Thigh', 'HAT')

@@ -11,8 +11,8 @@ import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, SEGMENTS
+from nmt_ros.records import Truth
 from nmt_ros.study.pipeline import NMTRun
-from nmt_ros.study.trial import Truth
 
 
 def _rms(x: np.ndarray) -> np.ndarray:

@@ -3,10 +3,9 @@
 * Segment angles sampled at 120 Hz, ground force and moment at 1080 Hz (samples of the truth
   at those instants; the truth is computed on the 1080 Hz grid, so 120 Hz is every 9th).
 * Gaussian noise, SD 5, 3, 2, 1 deg for foot, shank, thigh, HAT; 2 % of body weight for the
-  fore-aft and vertical forces. The moment channel's noise (N m) is 2 % of body weight times
-  the foot's heel-to-toe length (0.17 m): the moment of a 2 %-BW force error at the end of the
-  foot, so the noise is commensurate with the forces' (the paper gives no unit; 2 % of BW
-  read as N m would be 14.7 N m, 7 % of this model's peak moment).
+  fore-aft and vertical forces; the moment's SD is 2 % of body weight times the foot's
+  heel-to-toe length (0.17 m). These numbers are the observation specification,
+  ``nmt_ros.tracking.observation_noise`` (why the moment's SD is what it is: there).
 * Smooth bias ("non-random noise": skin motion, offsets) with a peak magnitude equal to the
   channel's noise SD and a random sign per channel. Two shapes (``bias_shape``):
   'motion' (default): skin-motion artefact, which follows the segment's own excursion,
@@ -26,23 +25,35 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from nmt_ros.study.trial import Observations, Truth
+from nmt_ros.records import Observations, Truth
+from nmt_ros.tracking.observation_noise import BIAS_SHAPES, OBSERVATION_NOISE, ObservationNoise
 
 
 @dataclass(frozen=True)
 class ObservationSettings:
-    """How observations are made from the truth (defaults: the paper's)."""
+    """How observations are made from the truth. The noise and bias defaults are the
+    observation specification (``OBSERVATION_NOISE``, the paper's), which the trackers'
+    weights derive from too; these fields (flat, as bags store them) let sweeps vary them."""
 
     angle_rate_hz: float = 120.0
     wrench_rate_hz: float = 1080.0
-    angle_noise_deg: tuple[float, float, float, float] = (5.0, 3.0, 2.0, 1.0)  # foot..HAT
-    force_noise_bw: float = 0.02
-    moment_lever_m: float = 0.17      # heel-to-toe length of the foot (data file points)
-    moment_bias_fraction: float = 0.20
-    bias_shape: str = 'motion'        # 'motion' | 'harmonic'
-    bias_harmonics: int = 3
+    angle_noise_deg: tuple[float, float, float, float] = OBSERVATION_NOISE.angle_sd_deg
+    force_noise_bw: float = OBSERVATION_NOISE.force_sd_bw
+    moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m
+    moment_bias_fraction: float = OBSERVATION_NOISE.moment_bias_fraction
+    bias_shape: str = OBSERVATION_NOISE.bias_shape            # one of BIAS_SHAPES
+    bias_harmonics: int = OBSERVATION_NOISE.bias_harmonics
     noise_scale: float = 1.0          # multiplies every noise SD and bias (sweeps)
     seed: int = 0
+
+    @property
+    def noise(self) -> ObservationNoise:
+        """These settings' noise and bias as an observation specification (unscaled)."""
+        return ObservationNoise(angle_sd_deg=self.angle_noise_deg,
+                                force_sd_bw=self.force_noise_bw,
+                                moment_lever_m=self.moment_lever_m,
+                                moment_bias_fraction=self.moment_bias_fraction,
+                                bias_shape=self.bias_shape, bias_harmonics=self.bias_harmonics)
 
 
 def _smooth_shape(t: np.ndarray, period: float, rng: np.random.Generator, harmonics: int,
@@ -78,9 +89,8 @@ def make_observations(truth: Truth, settings: ObservationSettings = ObservationS
     if (np.abs(truth.t[idx_w] - t_w).max() > 1e-9 or np.abs(truth.t[idx_a] - t_a).max() > 1e-9):
         raise ValueError('the truth grid must contain the 120 Hz and 1080 Hz sample instants')
 
-    angle_sd = np.radians(st.angle_noise_deg) * st.noise_scale
-    wrench_sd = np.array([st.force_noise_bw, st.force_noise_bw,
-                          st.force_noise_bw * st.moment_lever_m]) * body_weight * st.noise_scale
+    angle_sd = st.noise.angle_sd_rad() * st.noise_scale
+    wrench_sd = st.noise.wrench_sd(body_weight) * st.noise_scale
     moment_peak = np.abs(truth.s[truth.contact_mask(), 2]).max()
 
     bias_peaks = np.array([wrench_sd[0], wrench_sd[1],
@@ -96,7 +106,7 @@ def make_observations(truth: Truth, settings: ObservationSettings = ObservationS
         lobe = np.where(t_w <= truth.liftoff_s, np.sin(np.pi * t_w / truth.liftoff_s), 0.0)
         wrench_shapes = [lobe] * 3
     else:
-        raise ValueError(f"bias_shape must be 'motion' or 'harmonic', not {st.bias_shape!r}")
+        raise ValueError(f'bias_shape must be one of {BIAS_SHAPES}, not {st.bias_shape!r}')
     angle_bias = np.column_stack([angle_sd[j] * rng.choice([-1.0, 1.0]) * angle_shapes[j]
                                   for j in range(4)])
     wrench_bias = np.column_stack([bias_peaks[j] * rng.choice([-1.0, 1.0]) * wrench_shapes[j]

@@ -34,7 +34,7 @@ from nmt_ros.io.opensim_files import (
     write_table,
 )
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.study.trial import Truth
+from nmt_ros.records import Truth
 
 COORDINATES = ('foot_tilt', 'foot_tx', 'foot_ty', 'ankle_angle', 'knee_angle', 'hip_flexion')
 #: OpenSim joint of each coordinate in the exported model.

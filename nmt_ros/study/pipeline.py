@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.records import MuscleEstimates, Observations, SKTResult, TrialEstimates
 from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
-from nmt_ros.study.trial import Observations
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
 from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
 from nmt_ros.tracking.neuromuscular_tracker import (
@@ -22,13 +22,8 @@ from nmt_ros.tracking.neuromuscular_tracker import (
     Stage2Result,
     load_stage2_settings,
 )
-from nmt_ros.tracking.skeletal_tracker import (
-    SKTResult,
-    SKTSettings,
-    initial_state,
-    reference_arrays,
-    track,
-)
+from nmt_ros.tracking.skeletal_tracker import SKTSettings, initial_state, reference_arrays
+from nmt_ros.tracking.streaming import track_stage1
 
 STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle')
 STAGE1_LABELS = {'skt': 'SKT', 'optimal': 'optimal tracking',
@@ -68,6 +63,13 @@ class NMTRun:
     def ok(self) -> bool:
         return self.skt.ok and self.stage2 is not None
 
+    def estimates(self) -> TrialEstimates:
+        """The run's estimates as the estimates bag carries them."""
+        muscles = (None if self.stage2 is None else MuscleEstimates(
+            t=self.stage2.t, f=self.stage2.f, a=self.stage2.a, u=self.stage2.u))
+        return TrialEstimates(stage1=self.skt, ivd_t=self.ivd.t, ivd_tau=self.ivd.tau,
+                              muscles=muscles)
+
 
 def joint_kinematics(model: JumperModel, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -99,7 +101,7 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     cpu['conditioning'] = time.process_time() - c
 
     say('Stage 1: skeletal motion tracker')
-    skt = track(model, cond, settings.skt, settings.rate_hz)
+    skt = track_stage1(model, cond, settings.skt, settings.rate_hz)
     cpu['stage1'] = skt.cpu_s + cpu['conditioning']
     if settings.stage1 in STAGE1_METHODS[1:] and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal

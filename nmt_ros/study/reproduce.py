@@ -19,12 +19,13 @@ import numpy as np
 from nmt_ros.io.trial_bag import read_observations, read_truth
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS
+from nmt_ros.records import Truth
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.study.pipeline import NMTSettings, joint_kinematics, run_nmt
-from nmt_ros.study.trial import Truth
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
-from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.streaming import track_stage1
 
 
 def _contact_rms_pct(t: np.ndarray, est: np.ndarray, truth: Truth, ref: np.ndarray,
@@ -100,7 +101,7 @@ def noise_sweep(model: JumperModel, truth: Truth, scales: list[float], seeds: li
                                                       noise_scale=scale),
                                        body_weight=model.p.body_weight)
             cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-            res = track(model, cond)
+            res = track_stage1(model, cond)
             row = {'noise_scale': scale, 'seed': seed, 'status': res.status,
                    'events': res.events, 'cpu_s': res.cpu_s}
             if res.ok:
@@ -175,8 +176,8 @@ def run_label(run: object) -> str:
 def jacobian_study(model: JumperModel, obs: object) -> dict:
     """Exact (AD) vs numerical (central differences) Jacobians in Stage 1."""
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
-    exact = track(model, cond, SKTSettings(jacobians='exact'))
-    numer = track(model, cond, SKTSettings(jacobians='numerical'))
+    exact = track_stage1(model, cond, SKTSettings(jacobians='exact'))
+    numer = track_stage1(model, cond, SKTSettings(jacobians='numerical'))
     n = min(exact.t.size, numer.t.size)
     peak = np.abs(exact.tau[:n]).max(axis=0)
     diff = np.abs(exact.tau[:n] - numer.tau[:n]).max(axis=0) / peak
@@ -217,8 +218,8 @@ def window_study(model: JumperModel, run: object, truth: Truth, windows_s: list[
 def reproduce(out: Path, bag: Path, quick: bool = False, say: callable = print,
               po: dict | None = None) -> dict:
     """The whole study on ``bag`` (a synthetic trial bag); writes ``out``; returns metrics."""
-    from nmt_ros.cli.track import track_bag
     from nmt_ros.model.jumper import default_model
+    from nmt_ros.study.batch import track_bag
     from nmt_ros.study.report import markdown_report
 
     model = default_model()

@@ -40,8 +40,9 @@ import casadi as ca
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.study.trial import Observations
-from nmt_ros.tracking.skeletal_tracker import SKTResult, liftoff_time
+from nmt_ros.records import Observations, SKTResult
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
+from nmt_ros.tracking.skeletal_tracker import liftoff_time
 
 _QDD_SCALE = 100.0   # rad/s^2 or m/s^2 per unit of an acceleration variable
 _TAU_SCALE = 100.0   # N m per unit of a torque variable
@@ -51,10 +52,11 @@ _TAU_SCALE = 100.0   # N m per unit of a torque variable
 class OptimalTrackingSettings:
     """Noise model (the weights) and numerics of the tracking optimisation."""
 
-    angle_sd_deg: tuple[float, ...] = (5.0, 3.0, 2.0, 1.0)   # foot..HAT
+    # Channel weights 1/SD: the observation specification's noise (METHOD.md 1.3).
+    angle_sd_deg: tuple[float, ...] = OBSERVATION_NOISE.angle_sd_deg   # foot..HAT
     angle_bias_allowance: float = 1.0          # SD multiplier (sqrt 2: a bias as large again)
-    force_sd_bw: float = 0.02
-    moment_lever_m: float = 0.17               # moment SD = force SD x this lever
+    force_sd_bw: float = OBSERVATION_NOISE.force_sd_bw
+    moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m   # moment SD = force SD x lever
     # Moment bias b(t) = sum c_k (t/T)^k, k = 1..n: 7 terms follow both a one-lobe and a
     # three-harmonic bias (tested on both shapes; 3 terms leave the hip 2 % worse).
     moment_bias_terms: int = 7

@@ -34,11 +34,14 @@ of 70 %). Over a 0.2 s push the mode grows by about e^1 and is harmless; over se
 standing with noisy data it drifts until the loss-of-control checks stop the trial (after
 0.5-1.5 s of standing in our tests). Start trials near movement onset (as the paper's data
 do); the live node restarts a trial after a loss of control.
+
+This module is the recipe (settings, the compiled closed loop and its RK4 step, the initial
+state); ``nmt_ros.tracking.streaming`` runs it on data, live or over a whole recording.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-import time
+from dataclasses import dataclass, replace
+import functools
 
 import casadi as ca
 import numpy as np
@@ -46,6 +49,7 @@ import numpy as np
 from nmt_ros.model.integrate import rk4_step
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.conditioning import ConditionedObservations
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
 N_REF = 18  # theta(4), theta_dot(4), theta_ddot(4), s(3), s_dot(3)
 
@@ -56,9 +60,12 @@ class SKTSettings:
 
     poles: tuple[float, ...] = (50.0, 50.0, 50.0, 50.0, 1000.0, 1000.0, 1000.0)
     weights: tuple[float, ...] = (0.001, 0.7, 0.8, 1.0, 2.0, 2.0, 1.0)
+    # Row scales of Eq. 5 (the error a row demands be removed, in these units): 1 deg for the
+    # angles (Table 1's weights carry the per-segment trust), the force plate's noise SD for
+    # the contact rows, from the observation specification.
     angle_scale_deg: float | tuple[float, ...] = 1.0   # one value or one per segment
-    force_scale_bw: float = 0.02
-    moment_lever_m: float = 0.17
+    force_scale_bw: float = OBSERVATION_NOISE.force_sd_bw
+    moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m   # moment scale = force x lever
     bias_rate: float = 20.0          # kappa (1/s) of the moment-bias estimate; 0 = off
     # Tikhonov rows sqrt(w) tau / torque_scale added to Eq. 5: keeps the torques determined
     # when the contact rows vanish (flight) and the foot angle's weight is tiny. 0 = off.
@@ -87,14 +94,30 @@ class SKTSettings:
         return replace(self, **kw)
 
 
-class SkeletalTrackerRecipe:
-    """The closed-loop system of Stage 1 compiled once: a pure function of (Q, b, ref, x0)."""
+@dataclass
+class SKTState:
+    """Explicit state of the tracker (the recipe is stateless)."""
 
-    def __init__(self, model: JumperModel, settings: SKTSettings = SKTSettings()) -> None:
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    b: float
+    x0: np.ndarray
+
+
+class SkeletalTracker:
+    """Stage 1 as a recipe: the closed loop (Eqs. 2-7) compiled once, and its fixed-step RK4
+    in step with the data. Stateless (Drake's System): the state is an :class:`SKTState`
+    passed in and returned; ``nmt_ros.tracking.streaming.Stage1Stream`` holds it."""
+
+    def __init__(self, model: JumperModel, settings: SKTSettings = SKTSettings(),
+                 rate_hz: float = 1080.0) -> None:
         if settings.jacobians not in ('exact', 'numerical'):
             raise ValueError("jacobians must be 'exact' or 'numerical'")
         self.model = model
         self.settings = settings
+        self.rate_hz = rate_hz
+        self.dt = 1.0 / (rate_hz * settings.substeps)   # RK4 step [s]
         self._build()
 
     def _build(self) -> None:
@@ -159,40 +182,82 @@ class SkeletalTrackerRecipe:
             ['Qdot', 'bdot', 'tau', 'y', 'residual', 'normal'])
         self.rhs = ca.Function('skt_rhs', [q, qd, b, ref, x0], [ca.vertcat(qd, qdd), bdot])
 
+    def fine_times(self, t0: float, n_samples: int) -> np.ndarray:
+        """RK4 stage instants for n output samples after t0 (half-step grid)."""
+        k = self.settings.substeps * n_samples
+        return t0 + np.arange(0, 2 * k + 1) * (self.dt / 2)
 
-@dataclass
-class SKTState:
-    """Explicit state of the tracker (the recipe is stateless)."""
+    def advance(self, state: SKTState, refs: np.ndarray) -> tuple[SKTState, dict]:
+        """Integrate over len(refs)//(2*substeps) output samples; refs on ``fine_times``.
 
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    b: float
-    x0: np.ndarray
+        Returns the new state and the outputs at each output sample's END instant.
+        """
+        st = self.settings
+        rhs = self.rhs
+        n_sub = (refs.shape[0] - 1) // 2
+        dt = self.dt
+        x0 = state.x0
+        y = np.concatenate([state.q, state.qd, [state.b]])
+        outs = []
+        for k in range(n_sub):
+            # RK4 evaluates at 0, h/2 and h: the references on the half-step grid.
+            stage_refs = refs[2 * k:2 * k + 3]
 
+            def f(t_rel: float, yy: np.ndarray, stage_refs: np.ndarray = stage_refs,
+                  ) -> np.ndarray:
+                ref = stage_refs[int(round(2 * t_rel / dt))]
+                qdot, bdot = rhs(yy[:6], yy[6:12], yy[12], ref, x0)
+                return np.append(np.asarray(qdot).ravel(), float(bdot))
 
-@dataclass
-class SKTResult:
-    """Stage 1 output on the output grid (the force-plate samples)."""
+            y = rk4_step(f, 0.0, y, dt)
+            if (k + 1) % st.substeps == 0:
+                outs.append((y[:12].copy(), float(y[12]), refs[2 * k + 2]))
+        Q, b = y[:12], float(y[12])
+        new = SKTState(t=state.t + n_sub * dt, q=Q[:6].copy(), qd=Q[6:].copy(), b=b, x0=x0)
+        return new, self.outputs(outs, x0)
 
-    t: np.ndarray            # [n] s
-    q: np.ndarray            # [n, 6]
-    qd: np.ndarray           # [n, 6]
-    qdd: np.ndarray          # [n, 6]
-    tau: np.ndarray          # [n, 3] joint torques (N m): ankle, knee, hip
-    s: np.ndarray            # [n, 3] synthesised ground wrench
-    bias: np.ndarray         # [n] moment-bias estimate (N m)
-    residual: np.ndarray     # [n, 7] normalised least-squares residual
-    x0: np.ndarray
-    status: str = 'ok'       # 'ok' | 'lost_control'
-    events: list = field(default_factory=list)
-    cpu_s: float = 0.0
-    liftoff_s: float = float('nan')
-    muscles: dict | None = None  # muscle-driven Stage 1 only: {'a', 'u', 'f'} [n, 9]
+    def outputs(self, outs: list, x0: np.ndarray) -> dict:
+        """Torques, outputs and diagnostics at the output samples (one batched call)."""
+        Qs = np.array([o[0] for o in outs])
+        bs = np.array([o[1] for o in outs])
+        refs = np.array([o[2] for o in outs])
+        m = self.model
+        Qdot, _, tau, y, resid, normal = m.batch(self.closed_loop, Qs[:, :6], Qs[:, 6:],
+                                                  bs[:, None], refs, x0)
+        finite = np.isfinite(normal).all(axis=(1, 2))
+        cond = np.full(len(outs), np.nan)
+        if finite.any():
+            eig = np.linalg.eigvalsh(normal[finite])
+            cond[finite] = eig[:, 0] / eig[:, -1]
+        return {'Q': Qs, 'qdd': Qdot[:, 6:], 'tau': tau, 'y': y, 'b': bs, 'ref': refs,
+                'residual': resid, 'conditioning': cond}
 
-    @property
-    def ok(self) -> bool:
-        return self.status == 'ok'
+    def check_control(self, out: dict, t: np.ndarray) -> list[dict]:
+        """Loss-of-control events (first per kind) in a block of outputs."""
+        st = self.settings
+        events = []
+        y, ref = out['y'], out['ref']
+        finite = np.isfinite(out['Q']).all(axis=1) & np.isfinite(out['tau']).all(axis=1)
+        err_angle = np.degrees(np.abs(y[:, 1:4] - ref[:, 1:4])).max(axis=1)
+        err_force = np.abs(y[:, 5] - ref[:, 13]) / self.model.p.body_weight
+        checks = [
+            (~finite, 'non-finite state or torque (the simulation diverged)'),
+            (err_angle > st.max_angle_error_deg,
+             f'segment angle error above {st.max_angle_error_deg:g} deg'),
+            (err_force > st.max_force_error_bw,
+             f'vertical ground force error above {st.max_force_error_bw:g} BW'),
+            (~(out['conditioning'] >= st.min_conditioning),
+             'the least-squares system lost rank (torques no longer determined)'),
+            (np.abs(out['tau']).max(axis=1) > st.max_torque_nm,
+             f'joint torque above {st.max_torque_nm:g} N m (the tracker is diverging)'),
+        ]
+        for mask, reason in checks:
+            if mask.any():
+                i = int(np.argmax(mask))
+                events.append({'t': float(t[i]), 'reason': reason,
+                               'angle_error_deg': float(err_angle[i]),
+                               'force_error_bw': float(err_force[i])})
+        return events
 
 
 def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Function:
@@ -202,12 +267,17 @@ def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Functio
     the joint torques cancel in these combinations), weighted heavily; the angles' deviation
     from the observed ones and the moment's from the observed moment, normalised and weighted
     as the rows of Eq. 5. The anchors sit under the contact points (springs unstretched).
+    Built once per model and the settings it depends on (weights and row scales).
     """
-    key = ('static_residual', st.weights, st.angle_scale_deg, st.force_scale_bw,
-           st.moment_lever_m)
-    cache = model.__dict__.setdefault('_skt_cache', {})
-    if key in cache:
-        return cache[key]
+    relevant = SKTSettings(weights=st.weights, angle_scale_deg=st.angle_scale_deg,
+                           force_scale_bw=st.force_scale_bw, moment_lever_m=st.moment_lever_m)
+    return _static_residual(model, relevant)
+
+
+# Bounded: a process builds one or two (model, settings) pairs; at most 8 are kept alive.
+@functools.lru_cache(maxsize=8)
+def _static_residual(model: JumperModel, st: SKTSettings) -> ca.Function:
+    """The compiled residual of :func:`_static_residual_function` (cached)."""
     z = ca.SX.sym('z', 5)
     th_obs = ca.SX.sym('theta_obs', 4)
     m_obs = ca.SX.sym('moment_obs')
@@ -224,9 +294,7 @@ def _static_residual_function(model: JumperModel, st: SKTSettings) -> ca.Functio
         z[0:4] - th_obs)
     moment = w[6] * (s[2] - m_obs) / (st.force_scale_bw * bw * st.moment_lever_m)
     r = ca.vertcat(balance, angles, moment)
-    cache[key] = ca.Function('skt_static_residual', [z, th_obs, m_obs],
-                             [r, ca.jacobian(r, z)])
-    return cache[key]
+    return ca.Function('skt_static_residual', [z, th_obs, m_obs], [r, ca.jacobian(r, z)])
 
 
 def _flat_foot_angle(model: JumperModel) -> float:
@@ -297,217 +365,6 @@ def reference_arrays(cond: ConditionedObservations, t: np.ndarray) -> np.ndarray
     smp = cond.sample(t)
     return np.hstack([smp['theta'], smp['theta_dot'], smp['theta_ddot'], smp['s'],
                       smp['s_dot']])
-
-
-class SkeletalTracker:
-    """Recipe + stepping: integrates the closed loop in step with the data (batch or live)."""
-
-    def __init__(self, model: JumperModel, settings: SKTSettings = SKTSettings(),
-                 rate_hz: float = 1080.0) -> None:
-        self.model = model
-        self.settings = settings
-        self.recipe = SkeletalTrackerRecipe(model, settings)
-        self.rate_hz = rate_hz
-        self.dt = 1.0 / (rate_hz * settings.substeps)
-
-    def fine_times(self, t0: float, n_samples: int) -> np.ndarray:
-        """RK4 stage instants for n output samples after t0 (half-step grid)."""
-        k = self.settings.substeps * n_samples
-        return t0 + np.arange(0, 2 * k + 1) * (self.dt / 2)
-
-    def advance(self, state: SKTState, refs: np.ndarray) -> tuple[SKTState, dict]:
-        """Integrate over len(refs)//(2*substeps) output samples; refs on ``fine_times``.
-
-        Returns the new state and the outputs at each output sample's END instant.
-        """
-        st = self.settings
-        rhs = self.recipe.rhs
-        n_sub = (refs.shape[0] - 1) // 2
-        dt = self.dt
-        x0 = state.x0
-        y = np.concatenate([state.q, state.qd, [state.b]])
-        outs = []
-        for k in range(n_sub):
-            # RK4 evaluates at 0, h/2 and h: the references on the half-step grid.
-            stage_refs = refs[2 * k:2 * k + 3]
-
-            def f(t_rel: float, yy: np.ndarray, stage_refs: np.ndarray = stage_refs,
-                  ) -> np.ndarray:
-                ref = stage_refs[int(round(2 * t_rel / dt))]
-                qdot, bdot = rhs(yy[:6], yy[6:12], yy[12], ref, x0)
-                return np.append(np.asarray(qdot).ravel(), float(bdot))
-
-            y = rk4_step(f, 0.0, y, dt)
-            if (k + 1) % st.substeps == 0:
-                outs.append((y[:12].copy(), float(y[12]), refs[2 * k + 2]))
-        Q, b = y[:12], float(y[12])
-        new = SKTState(t=state.t + n_sub * dt, q=Q[:6].copy(), qd=Q[6:].copy(), b=b, x0=x0)
-        return new, self._outputs(outs, x0)
-
-    def _outputs(self, outs: list, x0: np.ndarray) -> dict:
-        """Torques, outputs and diagnostics at the output samples (one batched call)."""
-        Qs = np.array([o[0] for o in outs])
-        bs = np.array([o[1] for o in outs])
-        refs = np.array([o[2] for o in outs])
-        m = self.model
-        Qdot, _, tau, y, resid, normal = m.batch(self.recipe.closed_loop, Qs[:, :6], Qs[:, 6:],
-                                                  bs[:, None], refs, x0)
-        finite = np.isfinite(normal).all(axis=(1, 2))
-        cond = np.full(len(outs), np.nan)
-        if finite.any():
-            eig = np.linalg.eigvalsh(normal[finite])
-            cond[finite] = eig[:, 0] / eig[:, -1]
-        return {'Q': Qs, 'qdd': Qdot[:, 6:], 'tau': tau, 'y': y, 'b': bs, 'ref': refs,
-                'residual': resid, 'conditioning': cond}
-
-    def check_control(self, out: dict, t: np.ndarray) -> list[dict]:
-        """Loss-of-control events (first per kind) in a block of outputs."""
-        st = self.settings
-        events = []
-        y, ref = out['y'], out['ref']
-        finite = np.isfinite(out['Q']).all(axis=1) & np.isfinite(out['tau']).all(axis=1)
-        err_angle = np.degrees(np.abs(y[:, 1:4] - ref[:, 1:4])).max(axis=1)
-        err_force = np.abs(y[:, 5] - ref[:, 13]) / self.model.p.body_weight
-        checks = [
-            (~finite, 'non-finite state or torque (the simulation diverged)'),
-            (err_angle > st.max_angle_error_deg,
-             f'segment angle error above {st.max_angle_error_deg:g} deg'),
-            (err_force > st.max_force_error_bw,
-             f'vertical ground force error above {st.max_force_error_bw:g} BW'),
-            (~(out['conditioning'] >= st.min_conditioning),
-             'the least-squares system lost rank (torques no longer determined)'),
-            (np.abs(out['tau']).max(axis=1) > st.max_torque_nm,
-             f'joint torque above {st.max_torque_nm:g} N m (the tracker is diverging)'),
-        ]
-        for mask, reason in checks:
-            if mask.any():
-                i = int(np.argmax(mask))
-                events.append({'t': float(t[i]), 'reason': reason,
-                               'angle_error_deg': float(err_angle[i]),
-                               'force_error_bw': float(err_force[i])})
-        return events
-
-
-class Stage1Stream:
-    """Stage 1 run in step with the data: the single code path of batch and live tracking.
-
-    ``conditioner`` provides ``final_until()`` (the latest instant whose conditioned
-    observations are final) and ``sample(t)`` (see ``conditioning``): offline conditioned
-    observations (batch) or a :class:`~nmt_ros.tracking.conditioning.FixedLagConditioner`
-    fed by a live node. ``poll()`` advances the tracker over every output sample (the
-    force-plate instants k / rate_hz) that the data now allows, and returns their outputs.
-    """
-
-    def __init__(self, model: JumperModel, conditioner: object,
-                 settings: SKTSettings = SKTSettings(), rate_hz: float = 1080.0,
-                 block: int = 27) -> None:
-        self.model = model
-        self.tracker = SkeletalTracker(model, settings, rate_hz)
-        self.conditioner = conditioner
-        self.rate_hz = rate_hz
-        self.block = block
-        self.state: SKTState | None = None
-        self.done = 0                 # output samples integrated past t = 0
-        self.status = 'ok'
-        self.events: list[dict] = []
-        self.ended_s: float | None = None   # trial time where tracking ended in flight
-        self._loaded = False                # the model has carried load since the start
-        self._liftoff_s: float | None = None
-
-    def _flight_end(self, t_blk: np.ndarray, fy: np.ndarray) -> int | None:
-        """Index in the block after which tracking ends (flight), or None."""
-        st = self.tracker.settings
-        if st.flight_tracking_s is None:
-            return None
-        threshold = st.liftoff_force_bw * self.model.p.body_weight
-        for i, (t, f) in enumerate(zip(t_blk, fy)):
-            if self._liftoff_s is None:
-                if f > threshold:
-                    self._loaded = True
-                elif self._loaded:
-                    self._liftoff_s = float(t)
-            if self._liftoff_s is not None and t > self._liftoff_s + st.flight_tracking_s:
-                return i
-        return None
-
-    def poll(self, t_end: float | None = None) -> dict | None:
-        """Outputs for the newly final samples (None if none): 't' and the outputs' arrays."""
-        if self.status != 'ok' or self.ended_s is not None:
-            return None
-        final = self.conditioner.final_until()
-        if t_end is not None:
-            final = min(final, t_end)
-        chunks, times = [], []
-        if self.state is None:
-            if final < 0.0:
-                return None
-            ref0 = reference_arrays(self.conditioner, np.array([0.0]))[0]
-            self.state = initial_state(self.model, ref0, self.tracker.settings)
-            q0 = np.concatenate([self.state.q, self.state.qd])
-            first = self.tracker._outputs([(q0, 0.0, ref0)], self.state.x0)
-            ev = self.tracker.check_control(first, np.array([0.0]))
-            if ev:
-                self.events = [{**e, 'reason': 'no consistent initial state: ' + e['reason']}
-                               for e in ev]
-                self.status = 'lost_control'
-                return None
-            chunks.append(first)
-            times.append(np.array([0.0]))
-        n_final = int(np.floor(final * self.rate_hz + 1e-9))
-        while self.done < n_final and self.status == 'ok' and self.ended_s is None:
-            n = min(self.block, n_final - self.done)
-            refs = reference_arrays(self.conditioner,
-                                    self.tracker.fine_times(self.done / self.rate_hz, n))
-            self.state, out = self.tracker.advance(self.state, refs)
-            t_blk = (self.done + 1 + np.arange(n)) / self.rate_hz
-            self.done += n
-            end = self._flight_end(t_blk, out['y'][:, 5])
-            if end is not None:   # in flight past the tracked window: stop, status stays ok
-                self.ended_s = float(t_blk[end])
-                out = {k: v[:end] for k, v in out.items()}
-                t_blk = t_blk[:end]
-            ev = self.tracker.check_control(out, t_blk)
-            if ev:
-                self.events = ev
-                self.status = 'lost_control'
-                # Keep only the samples before the first event: the rest has diverged.
-                keep = t_blk < min(e['t'] for e in ev) - 1e-12
-                out = {k: v[keep] for k, v in out.items()}
-                t_blk = t_blk[keep]
-            chunks.append(out)
-            times.append(t_blk)
-        if not chunks:
-            return None
-        cat = {k: np.concatenate([c[k] for c in chunks])
-               for k in ('Q', 'qdd', 'tau', 'y', 'b', 'residual', 'conditioning')}
-        cat['t'] = np.concatenate(times)
-        return cat
-
-
-def track(model: JumperModel, cond: ConditionedObservations,
-          settings: SKTSettings = SKTSettings(), rate_hz: float = 1080.0,
-          t_end: float | None = None, block: int = 27) -> SKTResult:
-    """Batch Stage 1 over the whole recording: :class:`Stage1Stream` fed every sample.
-
-    Output samples are at k / rate_hz (the force-plate instants). Stops at the first loss of
-    control and reports it (status 'lost_control', events) with the outputs so far.
-    """
-    c0 = time.process_time()
-    stream = Stage1Stream(model, cond, settings, rate_hz, block)
-    cat = stream.poll(t_end)
-    if cat is None:  # lost at the start: an empty result that says why
-        empty = np.zeros((0, 6))
-        return SKTResult(t=np.zeros(0), q=empty, qd=empty, qdd=empty, tau=np.zeros((0, 3)),
-                         s=np.zeros((0, 3)), bias=np.zeros(0), residual=np.zeros((0, 7)),
-                         x0=np.zeros(2), status=stream.status, events=stream.events,
-                         cpu_s=time.process_time() - c0)
-    res = SKTResult(t=cat['t'], q=cat['Q'][:, :6], qd=cat['Q'][:, 6:], qdd=cat['qdd'],
-                    tau=cat['tau'], s=cat['y'][:, 4:7], bias=cat['b'],
-                    residual=cat['residual'], x0=stream.state.x0, status=stream.status,
-                    events=stream.events, cpu_s=time.process_time() - c0)
-    res.liftoff_s = liftoff_time(res.t, res.s[:, 1],
-                                 settings.liftoff_force_bw * model.p.body_weight)
-    return res
 
 
 def liftoff_time(t: np.ndarray, fy: np.ndarray, threshold: float = 1.0) -> float:

@@ -11,6 +11,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
+
 
 @dataclass(frozen=True)
 class MovingHorizonSettings:
@@ -26,10 +28,10 @@ class MovingHorizonSettings:
     # faster streams still work, with extra kernel calls)
     angle_rate_hz: float = 120.0
     wrench_rate_hz: float = 1080.0
-    # --- measurement model (observation specification)
-    angle_sd_deg: tuple[float, float, float, float] = (5.0, 3.0, 2.0, 1.0)  # foot..HAT
-    force_sd_bw: float = 0.02          # fore-aft and vertical force noise, fraction of BW
-    moment_lever_m: float = 0.17       # moment noise = force noise x this lever
+    # --- measurement model (the observation specification, OBSERVATION_NOISE)
+    angle_sd_deg: tuple[float, float, float, float] = OBSERVATION_NOISE.angle_sd_deg  # foot..HAT
+    force_sd_bw: float = OBSERVATION_NOISE.force_sd_bw      # forces' noise, fraction of BW
+    moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m  # moment noise = force x lever
     huber_k: float = 3.0               # residuals beyond k SD weigh linearly (outliers)
     # --- model error and priors
     # Eq. 1 residual allowed per collocation point: row i is divided by

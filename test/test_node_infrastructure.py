@@ -1,30 +1,20 @@
-"""The nodes' ROS-free parts: input gates, trial time, end of stream, status records, and the
-streaming trackers against the batch ones (nmt_ros.nodes._core, nmt_ros.nodes._streams)."""
+"""The nodes' ROS-free parts: input gates and trial time (nmt_ros.nodes.input_gate), readiness
+(readiness), end of stream (end_of_stream) and status records (node_status)."""
 from __future__ import annotations
-
-from functools import cache
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from nmt_ros.nodes._core import (
-    ERROR,
-    OK,
-    WARN,
+from nmt_ros.nodes.end_of_stream import (
     EndOfStream,
-    NodeStatus,
-    StreamGate,
     TrialBook,
-    TrialClock,
     end_of_stream_values,
-    missing_subscribers,
     parse_end_of_stream,
-    parse_wait_for,
-    percentiles_ms,
 )
+from nmt_ros.nodes.input_gate import StreamGate, TrialClock
+from nmt_ros.nodes.node_status import ERROR, OK, WARN, NodeStatus, percentiles_ms
+from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
 
-BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 MS = 1_000_000
 
 
@@ -165,114 +155,3 @@ def test_status_reports_levels_reasons_and_timing():
     reports = status.reports()
     assert reports[0].level == ERROR and reports[-1].message.startswith('loss of control')
     assert np.isnan(percentiles_ms([])['p50_ms'])
-
-
-# --------------------------------------------------------------------------- streaming = batch
-
-@cache
-def _trial():
-    from nmt_ros.io.trial_bag import read_observations
-    from nmt_ros.model.jumper import default_model
-    from nmt_ros.tracking.conditioning import condition
-    from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
-
-    model = default_model()
-    obs = read_observations(BAG)
-    skt = SKTSettings().with_(substeps=1)
-    batch = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench), skt)
-    return model, obs, skt, batch
-
-
-def _stream_stage1(lookahead_s: float):
-    from nmt_ros.nodes._streams import Stage1Runner
-    from nmt_ros.tracking.conditioning import ConditioningSettings
-
-    model, obs, skt, _ = _trial()
-    runner = Stage1Runner(model, skt, ConditioningSettings(lookahead_s=lookahead_s))
-    events = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
-                    + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
-    outs = []
-    for t, kind, i in events:
-        if kind == 0:
-            runner.add_angles(t, obs.angles[i])
-        else:
-            runner.add_wrench(t, obs.wrench[i])
-        out = runner.poll()
-        if out is not None:
-            outs.append(out)
-    n_streamed = sum(o.t.size for o in outs)
-    outs.append(runner.finish())
-    assert runner.finish() is None and runner.poll() is None
-    return {k: np.concatenate([getattr(o, k) for o in outs]) for k in ('t', 'tau', 'q', 'qd')
-            } | {'n_streamed': n_streamed}
-
-
-@pytest.mark.slow
-def test_stage1_stream_equals_batch_with_enough_lookahead():
-    _, _, _, batch = _trial()
-    out = _stream_stage1(0.1)
-    np.testing.assert_allclose(out['t'], batch.t, atol=1e-12)
-    assert 0 < out['n_streamed'] < batch.t.size       # most streamed, the rest flushed
-    rms = np.sqrt(np.mean((out['tau'] - batch.tau) ** 2, axis=0))
-    assert (rms / np.abs(batch.tau).max(axis=0) < 0.02).all(), rms
-
-
-@pytest.mark.slow
-def test_stage1_flush_alone_is_the_batch_tracker():
-    """A look-ahead longer than the trial: nothing is final until the end, and the flush
-    filters the whole trial at once, exactly what the batch tracker does."""
-    _, _, _, batch = _trial()
-    out = _stream_stage1(1.0)
-    assert out['n_streamed'] == 0
-    np.testing.assert_allclose(out['tau'], batch.tau, rtol=0, atol=1e-6 * np.abs(
-        batch.tau).max())
-
-
-@pytest.mark.slow
-def test_stage2_stream_equals_batch_windowed():
-    from nmt_ros.nodes._streams import Stage2Runner, initial_activations
-    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
-
-    model, _, _, batch = _trial()
-    n = 120
-    t, tau = batch.t[:n], batch.tau[:n]
-    th, thd, thdd = (model.batch(model.joint_angles, x[:n])[0]
-                     for x in (batch.q, batch.qd, batch.qdd))
-    tracker = NeuromuscularTracker(model)
-    runner = Stage2Runner(model, tracker, window_length_s=0.03, window_stride_s=0.005)
-    outs = []
-    for i in range(n):
-        runner.add(1000 + i, t[i], tau[i], th[i], thd[i])
-        if i % 9 == 8:        # bursts, as Stage 1 publishes them
-            outs.append(runner.process())
-    outs.append(runner.process(final=True))
-    outs = [o for o in outs if o is not None]
-    f = np.concatenate([o.f for o in outs])
-    stamps = np.concatenate([o.stamp_ns for o in outs])
-    np.testing.assert_array_equal(stamps, 1000 + np.arange(n))
-    a0, problem = initial_activations(model, th[0], tau[0], thd[0])
-    assert problem is None
-    np.testing.assert_allclose(runner.a0, a0)
-    ref = tracker.track(t, tau, th, thd, thdd, a0, mode='windowed', window_length=0.03,
-                        window_stride=0.005)
-    # only the (unused here) Eq. 9 report depends on theta_ddot: forces match to round-off
-    np.testing.assert_allclose(f, ref.f, atol=1e-6 * tracker.f0.max())
-    lmt = np.concatenate([o.l_mt for o in outs])
-    np.testing.assert_allclose(lmt, model.batch(model.musculotendon_lengths, th)[0])
-
-
-def test_joint_accelerations_are_central_differences():
-    from nmt_ros.model.jumper import default_model
-    from nmt_ros.nodes._streams import Stage2Runner
-
-    runner = Stage2Runner.__new__(Stage2Runner)
-    runner.model = default_model()
-    runner.reset()
-    t = np.arange(6) * 0.01
-    v = np.column_stack([t ** 2, 3 * t, np.ones_like(t)])
-    for i in range(6):
-        runner.add(i, t[i], np.zeros(3), np.zeros(3), v[i])
-    acc = runner._accelerations(runner.pending[:3])        # rows 0..2, row 3 is next
-    np.testing.assert_allclose(acc[:, 0], [0.01, 0.02, 0.04])  # one-sided at the start
-    np.testing.assert_allclose(acc[:, 1], 3.0)
-    np.testing.assert_allclose(acc[:, 2], 0.0)

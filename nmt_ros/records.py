@@ -1,9 +1,12 @@
-"""A trial's data as arrays: the "actual" performance (truth) and the observations.
+"""The records that flow between the layers: a trial's data and what the estimators made of it.
 
-These small records are what flows between the study's steps (reference -> observations ->
-trackers -> metrics) and what ``nmt_ros.io.trial_bag`` writes to and reads from bags.
-Times are trial times in seconds (0 = onset of the jump); bags carry them as stamps offset by
-``TRIAL_EPOCH_NS``.
+The bottom of the house (beside ``model``): every layer may import these, and they import only
+numpy and ``nmt_ros.model``. They are what passes between the study's steps (reference ->
+observations -> trackers -> metrics), what the trackers return and what ``nmt_ros.io.trial_bag``
+writes to and reads from bags.
+
+Times are trial times in seconds (0 = onset of the jump); bags carry them as header stamps
+offset by ``TRIAL_EPOCH_NS``. Arrays carry their axis order in the comments ([n, k]).
 """
 from __future__ import annotations
 
@@ -12,12 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.model.parameters import JOINTS, MUSCLES, SEGMENTS
 
 #: Header stamp of trial time 0 in the bags we write (2023-11-14T22:13:20Z): a fixed, nonzero
 #: epoch so that ROS time is never 0 (ROS treats 0 as "unset" under sim time).
 TRIAL_EPOCH_NS = 1_700_000_000 * 10**9
 
+
+# --------------------------------------------------------------------------- a trial's data
 
 @dataclass
 class Truth:
@@ -62,7 +66,8 @@ class Observations:
 def truth_from_simulation(model: JumperModel, t: np.ndarray, x: np.ndarray, u: np.ndarray,
                           x0: np.ndarray, liftoff_s: float, info: dict | None = None,
                           ) -> Truth:
-    """Every truth signal from a sampled forward simulation (x = [q, qd, a])."""
+    """Every truth signal from a sampled forward simulation (x = [q, qd, a] [n, 21], u [n, 9],
+    contact anchors x0 [2] m, lift-off time s)."""
     q, qd, a = x[:, :6], x[:, 6:12], x[:, 12:]
     xdot, = model.batch(model.musculoskeletal_ode, x, u, x0)
     tau, f = model.batch(model.muscle_torques, q, qd, a)
@@ -74,5 +79,49 @@ def truth_from_simulation(model: JumperModel, t: np.ndarray, x: np.ndarray, u: n
                  info=dict(info or {}))
 
 
-__all__ = ['JOINTS', 'MUSCLES', 'SEGMENTS', 'TRIAL_EPOCH_NS', 'Observations', 'Truth',
-           'truth_from_simulation']
+# --------------------------------------------------------------------------- estimates
+
+@dataclass
+class SKTResult:
+    """Stage 1 on its output grid (the force-plate samples): the skeletal motion tracker's
+    result, and the record optimal tracking returns too (then with ``muscles``)."""
+
+    t: np.ndarray            # [n] s
+    q: np.ndarray            # [n, 6]
+    qd: np.ndarray           # [n, 6]
+    qdd: np.ndarray          # [n, 6]
+    tau: np.ndarray          # [n, 3] joint torques (N m): ankle, knee, hip
+    s: np.ndarray            # [n, 3] synthesised ground wrench
+    bias: np.ndarray         # [n] moment-bias estimate (N m)
+    residual: np.ndarray     # [n, 7] normalised least-squares residual
+    x0: np.ndarray
+    status: str = 'ok'       # 'ok' | 'lost_control'
+    events: list = field(default_factory=list)
+    cpu_s: float = 0.0
+    liftoff_s: float = float('nan')
+    muscles: dict | None = None  # muscle-driven Stage 1 only: {'a', 'u', 'f'} [n, 9]
+
+    @property
+    def ok(self) -> bool:
+        return self.status == 'ok'
+
+
+@dataclass(frozen=True)
+class MuscleEstimates:
+    """Stage-2 estimates on its grid (a subset of the Stage-1 grid)."""
+
+    t: np.ndarray    # [n] s
+    f: np.ndarray    # [n, 9] musculotendon forces (N)
+    a: np.ndarray    # [n, 9] activations (0..1)
+    u: np.ndarray    # [n, 9] excitations (0..1), held over the next interval
+
+
+@dataclass(frozen=True)
+class TrialEstimates:
+    """What one batch run estimated, as the estimates bag carries it: Stage 1, the IVD
+    baseline's joint torques and, when Stage 2 ran, the muscles."""
+
+    stage1: SKTResult
+    ivd_t: np.ndarray       # [n] s
+    ivd_tau: np.ndarray     # [n, 3] N m (ankle, knee, hip)
+    muscles: MuscleEstimates | None = None

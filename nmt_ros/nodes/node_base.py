@@ -1,10 +1,11 @@
-"""rclpy glue shared by the nodes: QoS profiles, parameters, /nmt/status, readiness, main().
+"""The nodes' rclpy base classes: QoS profiles, parameters, /nmt/status, readiness.
 
 Every node is an :class:`NmtNode`: parameters are declared once (with a
 ``ParameterDescriptor``) and copied to attributes; ``/nmt/status`` (DiagnosticArray) is
 published every ``status_period_s`` and at once when something noteworthy happens; inputs
 are opened only when the node's outputs have the subscribers listed in ``wait_for``
-(``'/topic=N'``), so readiness propagates upstream and nothing is published into the void.
+(``'/topic=N'``, ``nmt_ros.nodes.readiness``), so readiness propagates upstream and nothing is
+published into the void.
 
 QoS: data topics are RELIABLE, KEEP_LAST ``qos_depth`` (default 5000, several seconds of the
 1080 Hz stream), VOLATILE: a replay through the graph is lossless while any subscriber keeps
@@ -13,57 +14,35 @@ RELIABLE, KEEP_LAST 100, TRANSIENT_LOCAL: a consumer that matched late still get
 end-of-stream announcement (announcements carry the trial's first stamp, so stale ones are
 ignored).
 
-:func:`run_node` is the ``main()`` of every node: ``rclpy.init`` (with our own SIGINT/SIGTERM
-handling, so a node can finish cleanly: the recorder closes its bag, the trackers wait until
-their last messages are acknowledged), spin until the node is done or a signal arrives, then
-``destroy_node`` and ``try_shutdown``.
-
 :class:`TrackerNode` is what the two trackers share: the trial parameters, the input path
-(count, parse, gate, start/restart a trial), the end-of-stream protocol (``TrialBook``), the
-idle watchdog and the counted publication of output batches. :func:`cli_node` gives a CLI
-verb (``nmt echo``, ``nmt bag play``) a node in its own rclpy context.
+(count, parse, gate, start/restart a trial: ``nmt_ros.nodes.input_gate``), the end-of-stream
+protocol (``nmt_ros.nodes.end_of_stream.TrialBook``), the idle watchdog and the counted
+publication of output batches. A tracker node subscribes, converts, calls its stream
+(``nmt_ros.tracking.streaming``) and publishes.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 import functools
-import signal
-import sys
-import threading
 import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-import rclpy
-from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from msg_adapters.diagnostics import StatusRecord, from_diagnostic_array, to_diagnostic_array
 from msg_adapters.stamps import time_to_ns
-from nmt_ros.nodes._core import (
-    ERROR,
-    STREAM_PART,
-    WARN,
-    NodeStatus,
-    Report,
-    Sample,
-    StreamGate,
-    TrialBook,
-    TrialClock,
-    end_of_stream_values,
-    missing_subscribers,
-    parse_wait_for,
-)
+from nmt_ros.nodes.end_of_stream import STREAM_PART, TrialBook, end_of_stream_values
+from nmt_ros.nodes.input_gate import Sample, StreamGate, TrialClock
+from nmt_ros.nodes.node_status import ERROR, WARN, NodeStatus, Report
+from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
+from nmt_ros.topics import STATUS
 
-STATUS_TOPIC = '/nmt/status'
 STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -107,7 +86,7 @@ class NmtNode(Node):
             'exit_when_finished', exit_default, 'leave the spin loop (end the process) once '
             'the work is finished and the outputs are acknowledged (nmt launch sets it)')
         self.wait_for = parse_wait_for(self.wait_for_spec)
-        self.status_pub = self.create_publisher(DiagnosticArray, STATUS_TOPIC, STATUS_QOS)
+        self.status_pub = self.create_publisher(DiagnosticArray, STATUS, STATUS_QOS)
         self._status_timer = self.create_timer(self.status_period_s, self.publish_status)
         self._gate_started = time.monotonic()
         self._last_status = 0.0
@@ -209,7 +188,7 @@ class TrackerNode(NmtNode):
     """Base of the trackers: gated input streams, trials, end of stream, idle watchdog.
 
     A subclass names its ``INPUTS`` and ``OUTPUTS`` (topic -> message type), builds
-    ``self.runner`` (``reset()`` starts a trial), ``self.gates`` (:meth:`stream_gates`) and,
+    ``self.stream`` (``reset()`` starts a trial), ``self.gates`` (:meth:`stream_gates`) and,
     if the epoch is a parameter, ``self.clock``; then it calls :meth:`listen`. It implements
     :meth:`parse` (message -> stamp, values; ValueError rejects it), :meth:`feed` (the samples
     the gate let through) and :meth:`flush` (the last outputs of a trial), and publishes
@@ -238,7 +217,7 @@ class TrackerNode(NmtNode):
         self.book = TrialBook(self.INPUTS)
         self.clock = TrialClock(0)
         self.gates: dict[str, StreamGate] = {}
-        self.runner: Any = None
+        self.stream: Any = None
         self.tracking = False
         self.last_input = time.monotonic()
         self.newest_input_ns = 0
@@ -259,7 +238,7 @@ class TrackerNode(NmtNode):
         self.create_timer(0.05, self.watchdog)
         self.status.state = 'ready'
         # end-of-stream announcements (transient local: heard even if matched late)
-        self.create_subscription(DiagnosticArray, STATUS_TOPIC, self.on_status, STATUS_QOS)
+        self.create_subscription(DiagnosticArray, STATUS, self.on_status, STATUS_QOS)
         self.open_inputs_when_ready(self._open_inputs)
 
     def _open_inputs(self) -> None:
@@ -329,7 +308,7 @@ class TrackerNode(NmtNode):
     # ------------------------------------------------------------------ trial
     def _start_trial(self, stamp_ns: int) -> None:
         trial = self.book.start()
-        self.runner.reset()
+        self.stream.reset()
         self.clock.reset()
         epoch = self.clock.start(stamp_ns)
         for gate in self.gates.values():
@@ -400,73 +379,3 @@ class TrackerNode(NmtNode):
             self.publish_status()
             if not self.wait_for_acks(10.0):
                 self.exit_code = 1
-
-
-class _Stop:
-    """Set by SIGINT/SIGTERM; the spin loop checks it between callbacks."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.signum = 0
-
-    def __call__(self, signum: int, _frame: object) -> None:
-        if not self.event.is_set():
-            self.signum = signum
-            self.event.set()
-
-
-def make_executor(kind: str = 'single') -> Any:
-    """``'single'``: rclpy's SingleThreadedExecutor; ``'events'``: the (experimental in Jazzy)
-    EventsExecutor, several times cheaper per callback, for nodes without raw subscriptions."""
-    if kind == 'events':
-        try:
-            from rclpy.experimental import EventsExecutor
-
-            return EventsExecutor()
-        except ImportError:
-            pass
-    return SingleThreadedExecutor()
-
-
-def run_node(factory: Callable[..., NmtNode], args: Sequence[str] | None = None,
-             executor: str = 'single') -> int:
-    """``main()`` of a node: init, spin until done or signalled, finish, destroy, shutdown."""
-    rclpy.init(args=list(sys.argv if args is None else args),
-               signal_handler_options=SignalHandlerOptions.NO)
-    stop = _Stop()
-    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    node = None
-    try:
-        node = factory()
-        executor = make_executor(executor)
-        executor.add_node(node)
-        while rclpy.ok() and not stop.event.is_set() and not node.done:
-            executor.spin_once(timeout_sec=0.05)
-        node.on_shutdown(interrupted=stop.event.is_set())
-        return node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        if node is not None:
-            node.on_shutdown(interrupted=True)
-        return 0 if node is None else node.exit_code
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-
-
-@contextmanager
-def cli_node(args: Any, name: str, **kwargs: Any) -> Iterator[Node]:
-    """A node of a CLI verb in its own rclpy context (``args.extra`` goes to ``rclpy.init``);
-    destroyed and the context shut down on leaving."""
-    context = Context()
-    rclpy.init(args=['nmt'] + list(getattr(args, 'extra', [])), context=context)
-    try:
-        node = rclpy.create_node(name, context=context, **kwargs)
-        try:
-            yield node
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)

@@ -1,4 +1,5 @@
-"""What the live graph did, read back from its recording (ROS-free; ``nmt demo``, bench, tests).
+"""Offline evaluation of a recording of the live graph: what it did, read back from the bag
+(``nmt demo``, bench, tests; no ROS graph needed).
 
 From a bag recorded by the ``recorder`` node while the graph processed a trial:
 
@@ -11,7 +12,7 @@ From a bag recorded by the ``recorder`` node while the graph processed a trial:
 - CPU: each node's share of one core while active (its status ``cpu_share``);
 - accuracy against the truth topics of the source bag (contact phase: t <= lift-off), the jump
   height of the tracked motion, and the agreement with the batch trackers run on the same
-  observations with the graph's settings (Stage 1 ``track``; Stage 2 windowed with the same
+  observations with the graph's settings (Stage 1 ``track_stage1``; Stage 2 windowed with the same
   window and stride, fed the batch Stage-1 output).
 """
 from __future__ import annotations
@@ -26,17 +27,11 @@ from typing import Any
 import numpy as np
 
 from msg_adapters.cdr_header import header_stamps_ns
+from nmt_ros import topics
 from nmt_ros.io.bags import bag_info, read_arrays, read_bag, read_raw
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES
 
-WRENCH_TOPIC = '/force_plate/wrench'
-ANGLES_TOPIC = '/mocap/segment_angles'
-TORQUES = '/nmt/skeletal/joint_torques'
-COORDS = '/nmt/skeletal/generalized_coordinates'
-GROUND = '/nmt/skeletal/ground_wrench'
-FORCES = '/nmt/muscle/forces'
-DATA_TOPICS = (ANGLES_TOPIC, WRENCH_TOPIC, TORQUES, '/nmt/skeletal/segment_angles', COORDS,
-               GROUND, FORCES, '/nmt/muscle/activations', '/nmt/muscle/excitations')
+DATA_TOPICS = topics.OBSERVATIONS + topics.SKELETAL_OUTPUTS + topics.MUSCLE_OUTPUTS
 NODES = ('observation_publisher', 'skeletal_tracker', 'muscle_tracker', 'recorder')
 
 
@@ -82,9 +77,9 @@ def final_statuses(bag: str | os.PathLike) -> dict[str, dict[str, str]]:
 
     out: dict[str, dict[str, str]] = {}
     names = {t.name for t in bag_info(bag).topics}
-    if '/nmt/status' not in names:
+    if topics.STATUS not in names:
         return out
-    for msg in read_bag(bag, ['/nmt/status']):
+    for msg in read_bag(bag, [topics.STATUS]):
         _, records = from_diagnostic_array(msg.msg)
         for r in records:
             if ':' not in r.name:
@@ -128,10 +123,10 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     """Batch Stage 1 and windowed Stage 2 on the source observations, graph settings."""
     from nmt_ros.io.trial_bag import read_observations
     from nmt_ros.model.jumper import default_model
-    from nmt_ros.nodes._streams import initial_activations
     from nmt_ros.tracking.conditioning import ConditioningSettings, condition
     from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
-    from nmt_ros.tracking.skeletal_tracker import SKTSettings, track
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings
+    from nmt_ros.tracking.streaming import initial_activations, track_stage1
 
     sk, mu = settings.get('skeletal_tracker', {}), settings.get('muscle_tracker', {})
     model = default_model()
@@ -141,8 +136,8 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     skt = SKTSettings()
     skt = skt.with_(substeps=int(_float(sk, 'setting.substeps', skt.substeps)),
                     bias_rate=_float(sk, 'setting.bias_rate', skt.bias_rate))
-    res = track(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, cs), skt,
-                _float(sk, 'setting.wrench_rate_hz', 1080.0))
+    res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, cs),
+                       skt, _float(sk, 'setting.wrench_rate_hz', 1080.0))
     out = {'t': res.t, 'tau': res.tau, 'status': res.status, 'epoch_ns': obs.info['epoch_ns']}
     if res.ok:
         th, thd, thdd = (model.batch(model.joint_angles, x)[0] for x in (res.q, res.qd, res.qdd))
@@ -170,10 +165,10 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     summary['counts'] = counts = message_counts(recording, statuses)
     summary['lossless'] = all(c['published'] == c['recorded'] for c in counts.values()
                               if c['published'] >= 0)
-    obs = topic_times(recording, WRENCH_TOPIC)
+    obs = topic_times(recording, topics.FORCE_PLATE_WRENCH)
     summary['latency_ms'] = {
-        'joint_torques': latency_ms(topic_times(recording, TORQUES), obs),
-        'muscle_forces': latency_ms(topic_times(recording, FORCES), obs)}
+        'joint_torques': latency_ms(topic_times(recording, topics.SKELETAL_JOINT_TORQUES), obs),
+        'muscle_forces': latency_ms(topic_times(recording, topics.MUSCLE_FORCES), obs)}
     summary['cpu'] = {n: {'share': round(_float(statuses.get(n, {}), 'cpu_share'), 3),
                           'cpu_s': round(_float(statuses.get(n, {}), 'cpu_s_active'), 3),
                           'wall_s': round(_float(statuses.get(n, {}), 'wall_s_active'), 3)}
@@ -186,18 +181,19 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     summary['rejected'] = rejected
 
     model = default_model()
-    jt = read_arrays(recording, TORQUES)
+    jt = read_arrays(recording, topics.SKELETAL_JOINT_TORQUES)
     names = {t.name for t in bag_info(recording).topics}
     epoch = int(statuses.get('skeletal_tracker', {}).get('epoch_ns', jt.stamp_ns[0]))
     t = (jt.stamp_ns - epoch) * 1e-9
     tau = _columns(jt, JOINTS, 'effort')
     forces = None
-    if FORCES in names and len(read_arrays(recording, FORCES)):
-        fs = read_arrays(recording, FORCES)
+    if topics.MUSCLE_FORCES in names and len(read_arrays(recording, topics.MUSCLE_FORCES)):
+        fs = read_arrays(recording, topics.MUSCLE_FORCES)
         forces = (fs.stamp_ns, _columns(fs, MUSCLES, 'effort'))
     tracked = {}
-    if COORDS in names and GROUND in names:
-        gc, gw = read_arrays(recording, COORDS), read_arrays(recording, GROUND)
+    coords, ground = topics.SKELETAL_GENERALIZED_COORDINATES, topics.SKELETAL_GROUND_WRENCH
+    if coords in names and ground in names:
+        gc, gw = read_arrays(recording, coords), read_arrays(recording, ground)
         tg = (gc.stamp_ns - epoch) * 1e-9
         # the tracker's own lift-off rule: its force falls below the plate's noise level
         lo = liftoff_time((gw.stamp_ns - epoch) * 1e-9, gw.force[:, 1],
