@@ -139,7 +139,9 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         ok = ca.logic_and(fy > 1.0, ca.fabs(span) > 1e-3)
         toe = ca.if_else(ok, ca.fmin(ca.fmax((mz - m_heel) / ca.if_else(ok, span, 1.0), 0.0),
                                      1.0), 0.5)
-        share = ca.vertcat(1 - toe, toe) if s.share_free else hold(ca.vertcat(1 - toe, toe), 'share')
+        share = ca.vertcat(1 - toe, toe)
+        if not s.share_free:
+            share = hold(share, 'share')
         load_now = ca.fmax(ca.vertcat(1 - toe, toe) * fy, 0.0)
         weight = hold(ca.sqrt(ca.fmin(load_now / s.full_load, 1.0)), 'weight')
         load = share * fy
