@@ -97,7 +97,8 @@ class MovingHorizonEstimator:
             full_load=st.contact_full_load_bw * bw, stiffness=float(model.p.contact.k_y),
             w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
             tau_act=m.tau_act, tau_deact=m.tau_deact,
-            wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free))
+            wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free,
+            full_share=st.contact_full_share))
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         self.plate_drift = np.asarray(st.plate_drift_sd, dtype=float) ** 2
@@ -394,7 +395,7 @@ def initial_control_points(model: JumperModel, grid: KnotGrid, first: int, n_seg
     window; activations are the rest activations of that posture's torques (static
     optimisation), the wrench the springs' (anchored so that they carry the observed
     fore-aft force), and the force plate's offsets what is left of the observed wrench
-    (within 3 SD of their prior; gains and COP offset zero).
+    (within 3 SD of their prior; the COP offset zero).
     """
     n = n_seg + 3
     ya, yw = _fill_nan(ta, ya), _fill_nan(tw, yw)

@@ -51,6 +51,7 @@ class KernelSpec:
     tau_deact: float
     wrench_accel_sd: tuple        # [3] prior SD of the wrench's 2nd derivative [N/s^2 sqrt(s)]
     share_free: bool = False      # differentiate the contact points' load shares
+    full_share: float = 0.2       # a point with this share of the vertical force is held
 
 
 def _basis(u: ca.SX, dt: float) -> list[list[ca.SX]]:
@@ -107,11 +108,10 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         rows.append(w * r)
         groups['angles'].append(w * r)
     sd_w = ca.DM(s.wrench_sd)
-    b, gain, d = p[PLATE['b']], p[PLATE['gain']], p[PLATE['cop']][0]
+    b, d = p[PLATE['b']], p[PLATE['cop']][0]
     for i in range(W):
         sw = at(u_w[i], 's', 0)
-        reading = ca.vertcat((1 + gain[0]) * sw[0] + b[0], (1 + gain[1]) * sw[1] + b[1],
-                             sw[2] + d * sw[1] + b[2])
+        reading = ca.vertcat(sw[0] + b[0], sw[1] + b[1], sw[2] + d * sw[1] + b[2])
         r = (reading - y_w[3 * i:3 * i + 3]) / sd_w
         w = hold(_huber(r, s.huber_k), f'hw_w{i}') * m_w[3 * i:3 * i + 3]
         rows.append(w * r)
@@ -142,8 +142,10 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         share = ca.vertcat(1 - toe, toe)
         if not s.share_free:
             share = hold(share, 'share')
-        load_now = ca.fmax(ca.vertcat(1 - toe, toe) * fy, 0.0)
-        weight = hold(ca.sqrt(ca.fmin(load_now / s.full_load, 1.0)), 'weight')
+        shares_now = ca.vertcat(1 - toe, toe)
+        held_by = (ca.fmin(shares_now / s.full_share, 1.0)
+                   * ca.fmin(ca.fmax(fy, 0.0) / s.full_load, 1.0))
+        weight = hold(ca.sqrt(held_by), 'weight')
         load = share * fy
         heights = ca.vertcat(pos[1], pos[3])
         slips = ca.vertcat(vel[0], vel[2])

@@ -32,7 +32,8 @@ class MovingHorizonSettings:
     angle_sd_deg: tuple[float, float, float, float] = OBSERVATION_NOISE.angle_sd_deg  # foot..HAT
     force_sd_bw: float = OBSERVATION_NOISE.force_sd_bw      # forces' noise, fraction of BW
     moment_lever_m: float = OBSERVATION_NOISE.moment_lever_m  # moment noise = force x lever
-    huber_k: float = 3.0               # residuals beyond k SD weigh linearly (outliers)
+    huber_k: float = 10.0              # residuals beyond k SD weigh linearly (outliers; a
+                                       # slowly tracked bias must not count as one)
     # --- model error and priors
     # Eq. 1 residual allowed per collocation point: row i is divided by
     # max(dynamics_sd x M_ii, dynamics_sd_floor), i.e. an acceleration error [rad/s^2, m/s^2]
@@ -45,7 +46,8 @@ class MovingHorizonSettings:
     # centre of pressure) stays at the springs' sinkage (load / stiffness) and does not slide
     contact_height_sd_m: float = 0.002
     contact_slip_sd_m_s: float = 0.02
-    contact_full_load_bw: float = 0.05  # a point with this share of body weight is fully held
+    contact_full_load_bw: float = 0.05  # points are held once the vertical force is this [BW]
+    contact_full_share: float = 0.2    # ... in proportion to their share of it up to this
     share_free: bool = False           # differentiate the load shares (else held, IRLS)
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
     # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
@@ -53,14 +55,16 @@ class MovingHorizonSettings:
     excitation_weight: float = 1.0     # w_u: cost w_u int |u|^2 dt [1/s]
     excitation_rate_weight: float = 0.1  # w_du: cost w_du int |du/dt|^2 dt [s]
     bound_weight: float = 1e4          # penalty on excitations outside [0, 1] (per unit^2 s)
-    # force-plate error model (offsets b, gains eps, COP offset d): prior SD at a start and
-    # drift (random walk) per second
-    plate_sd: tuple[float, ...] = (20.0, 20.0, 3.0, 0.05, 0.05, 0.05)   # N, N, N m, -, -, m
-    plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.5, 0.02, 0.02, 0.03)  # per sqrt(s)
+    # the force plate's error model (offsets b [N, N, N m], COP offset d [m]): its prior SD at
+    # a start and its drift (random walk) per sqrt(s). The moment offset and the COP offset
+    # read alike in stance (Fy ~ body weight): the offset drifts slowly (flights pin it), the
+    # COP offset carries what scales with the load
+    plate_sd: tuple[float, ...] = (20.0, 20.0, 2.0, 0.02)
+    plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.05, 0.005)
     # process noise on the arrival state (the control points the prior covers), per sqrt(s):
     # angles [deg], positions [m], activations, wrench [N] (None: off). It keeps the prior
     # from growing overconfident in what the window's own data can tell
-    arrival_noise_sd: tuple[float, float, float, float] | None = (2.0, 0.002, 0.05, 50.0)
+    arrival_noise_sd: tuple[float, float, float, float] | None = (0.2, 0.0005, 0.01, 10.0)
     # --- numerics
     iterations: int = 1                # Gauss-Newton iterations per update (at most)
     check_steps: bool = False          # evaluate each step and keep it only if the cost fell

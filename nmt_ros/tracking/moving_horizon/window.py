@@ -31,13 +31,13 @@ from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NB, NV, NX
 from nmt_ros.tracking.moving_horizon.spline import KnotGrid, evaluate
 
 #: Levenberg damping metric: 1 / (typical step)^2 per variable, a trust region in natural
-#: units (0.01 rad, 1 mm, 0.05 of activation, 20 N, 2 N m; plate: 5 N, 1 N m, 0.01 of gain,
-#: 1 mm of centre of pressure).
+#: units (0.01 rad, 1 mm, 0.05 of activation, 20 N, 2 N m; plate: 5 N, 1 N m, 1 mm of
+#: centre of pressure).
 _STEP = np.empty(NV)
 _STEP[LAYOUT['q']] = [0.01] * 4 + [0.001] * 2
 _STEP[LAYOUT['a']] = 0.05
 _STEP[LAYOUT['s']] = [20.0, 20.0, 2.0]
-_STEP_PLATE = np.array([5.0, 5.0, 1.0, 0.01, 0.01, 0.001])
+_STEP_PLATE = np.array([5.0, 5.0, 1.0, 0.001])
 
 
 @dataclass
