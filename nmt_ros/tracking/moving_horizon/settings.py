@@ -52,7 +52,7 @@ class MovingHorizonSettings:
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
     # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
     wrench_cutoff_hz: float = 40.0
-    excitation_weight: float = 1.0     # w_u: cost w_u int |u|^2 dt [1/s]
+    excitation_weight: float = 10.0    # w_u: cost w_u int |u|^2 dt [1/s]
     excitation_rate_weight: float = 0.1  # w_du: cost w_du int |du/dt|^2 dt [s]
     bound_weight: float = 1e4          # penalty on excitations outside [0, 1] (per unit^2 s)
     # the force plate's error model (offsets b [N, N, N m], COP offset d [m]): its prior SD at
