@@ -77,11 +77,12 @@ def _field(msg: JointState, field: str, k: int) -> np.ndarray:
 
 
 def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
-                     require: Iterable[str] = ()) -> JointStateSample:
+                     require: Iterable[str] = (), allow_nan: bool = False) -> JointStateSample:
     """One JointState -> arrays, optionally reordered to ``names``.
 
     ``require`` lists fields that must be present and finite (e.g. ``('position',)`` for
-    observed angles); other fields may hold NaN.
+    observed angles; with ``allow_nan`` NaN entries pass as missing values, inf never);
+    other fields may hold NaN.
     """
     got = check_names(msg.name, 'JointState name')
     k = len(got)
@@ -92,7 +93,7 @@ def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
         fields = {f: v[index] for f, v in fields.items()}
         got = names
     for f in require:
-        check_finite(fields[f], f'JointState {f}', got)
+        check_finite(fields[f], f'JointState {f}', got, allow_nan=allow_nan)
     return JointStateSample(stamp_ns=time_to_ns(msg.header.stamp), names=tuple(got),
                             frame_id=msg.header.frame_id,
                             **{f: np.array(v) for f, v in fields.items()})

@@ -48,14 +48,15 @@ def planar_wrenches_from_arrays(stamps: Any, frame_id: str, s: Any) -> list[Wren
 
 
 def from_planar_wrench(msg: WrenchStamped, frame_id: str | None = None,
-                       ) -> tuple[int, np.ndarray]:
+                       allow_nan: bool = False) -> tuple[int, np.ndarray]:
     """One WrenchStamped -> (stamp ns, ``s[3]``); ``frame_id`` given: must match.
 
-    Only the in-plane components are read and checked (NaN/inf raise ``ValueError``).
+    Only the in-plane components are read and checked (NaN/inf raise ``ValueError``; with
+    ``allow_nan`` a NaN passes as a missing value, inf never).
     """
     sample = from_wrench_stamped(msg, frame_id, check=False)
     s = np.array([sample.force[0], sample.force[1], sample.torque[2]])
-    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR)
+    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR, allow_nan=allow_nan)
     return sample.stamp_ns, s
 
 

@@ -24,9 +24,11 @@ def check_names(names: Any, what: str = 'names') -> tuple[str, ...]:
     return out
 
 
-def check_finite(values: np.ndarray, what: str, labels: Sequence[str] | None = None) -> None:
-    """Reject NaN/inf; the message names the first bad element (and its label)."""
-    bad = ~np.isfinite(values)
+def check_finite(values: np.ndarray, what: str, labels: Sequence[str] | None = None,
+                 allow_nan: bool = False) -> None:
+    """Reject NaN/inf (only inf when ``allow_nan``: a NaN then marks a missing value, e.g. an
+    occluded marker); the message names the first bad element (and its label)."""
+    bad = np.isinf(values) if allow_nan else ~np.isfinite(values)
     if bad.any():
         idx = np.unravel_index(int(np.flatnonzero(bad)[0]), values.shape)
         label = ''

@@ -22,6 +22,11 @@ SKELETAL_GENERALIZED_COORDINATES = '/nmt/skeletal/generalized_coordinates'
 SKELETAL_GROUND_WRENCH = '/nmt/skeletal/ground_wrench'
 SKELETAL_OUTPUTS = (SKELETAL_JOINT_TORQUES, SKELETAL_SEGMENT_ANGLES,
                     SKELETAL_GENERALIZED_COORDINATES, SKELETAL_GROUND_WRENCH)
+#: The low-latency (causal) estimates of the same quantities: the topic under
+#: ``/nmt/skeletal/low_latency/`` (same types and names).
+LOW_LATENCY_PREFIX = '/nmt/skeletal/low_latency'
+SKELETAL_LOW_LATENCY = {topic: LOW_LATENCY_PREFIX + topic[len('/nmt/skeletal'):]
+                        for topic in SKELETAL_OUTPUTS}
 
 # Stage 2 (muscle_tracker node; the batch estimates bag).
 MUSCLE_FORCES = '/nmt/muscle/forces'

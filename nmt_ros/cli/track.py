@@ -18,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Stage 2 over the whole horizon (the paper) or receding windows")
     parser.add_argument('--window', type=float, default=None,
                         help='Stage 2 window length H in s (windowed mode)')
-    parser.add_argument('--stage1', choices=('optimal_muscle', 'optimal', 'skt'),
+    parser.add_argument('--stage1', choices=('mhe', 'optimal_muscle', 'optimal', 'skt'),
                         default='optimal_muscle',
                         help='Stage 1: optimal tracking of all observations over the trial with '
                         'muscle-made joint torques (default: the most accurate, offline), the '

@@ -204,10 +204,11 @@ def estimate_messages(model: JumperModel, estimates: TrialEstimates,
     if estimates.muscles is not None:
         s2 = estimates.muscles
         ss = to_stamps_ns(s2.t, epoch_ns)
-        keep = np.searchsorted(skt.t, s2.t - 1e-12)   # Stage 2 runs on the Stage-1 grid
-        th = theta[keep]
+        # Stage 2 runs on the Stage-1 grid (gaps filled by interpolation, as live)
+        th, thd = (np.column_stack([np.interp(s2.t, skt.t, x[:, j]) for j in range(3)])
+                   for x in (theta, theta_dot))
         lmt, = model.batch(model.musculotendon_lengths, th)
-        vmt, = model.batch(model.musculotendon_velocities, th, theta_dot[keep])
+        vmt, = model.batch(model.musculotendon_velocities, th, thd)
         out += _muscle_topics(topics.MUSCLE_OUTPUTS, ss, lmt, vmt, s2.f, s2.a, s2.u)
     return _time_ordered(out)
 

@@ -1,12 +1,19 @@
-"""skeletal_tracker: Stage 1 (SKT) live, in step with the observations.
+"""skeletal_tracker: Stage 1 live, in step with the observations.
 
 Subscribes ``/mocap/segment_angles`` (JointState [foot, shank, thigh, hat], position) and
-``/force_plate/wrench`` (WrenchStamped in ``wrench_frame``), filters them with a fixed
-look-ahead (``lookahead_s``: the estimate for instant t is computed once data up to
-t + lookahead_s has arrived) and steps Stage 1 after each arrival
-(``nmt_ros.tracking.streaming.Stage1Stream``, the batch tracker's code). Publishes, stamped
-with the observation instant (the force-plate samples k / wrench_rate_hz from the trial
-start):
+``/force_plate/wrench`` (WrenchStamped in ``wrench_frame``). Two estimators (``estimator``):
+
+* ``mhe`` (default): the moving-horizon estimator
+  (``nmt_ros.tracking.moving_horizon.MovingHorizonEstimator``, the batch ``nmt track``'s
+  code): every sample goes in as it arrives, the estimator updates on data time alone (so
+  what it publishes depends on the input stream only, not on timing) and gives, for every
+  force-plate instant, a low-latency estimate (``/nmt/skeletal/low_latency/*``) and the
+  refined one ``lag_s`` later (the topics below). Occluded markers / missing channels (NaN)
+  are passed through as missing values and counted; the estimator bridges them.
+* ``skt``: the paper's skeletal motion tracker, filtered with a fixed look-ahead
+  (``lookahead_s``) and stepped after each arrival (``nmt_ros.tracking.streaming``).
+
+Publishes, stamped with the observation instant (the force-plate samples):
 
 - ``/nmt/skeletal/joint_torques``: JointState [ankle, knee, hip], position/velocity = OpenSim
   joint angle/rate, effort = torque [N m] (as ``/truth/joint_torques``);
@@ -16,9 +23,11 @@ start):
 - ``/nmt/skeletal/ground_wrench``: WrenchStamped ('foot_com') from the model's springs.
 
 Joint accelerations are not published: the muscle tracker differences the joint rates.
-Bad samples (NaN/inf, wrong length or names, wrong frame, duplicate or out-of-order stamps)
-are rejected with a reason on ``/nmt/status``; gaps are filled by interpolation and
-reported. The trial ends (the last look-ahead is flushed) when the producer's end-of-stream
+Bad samples (inf, NaN in ``skt`` mode, wrong length or names, wrong frame, duplicate or
+out-of-order stamps) are rejected with a reason on ``/nmt/status``; gaps are filled by
+interpolation and reported; the estimator's own events (initialised, observations poorly
+explained, loss of control and re-initialisation) go to ``/nmt/status`` too. The trial ends
+(the last estimates are flushed) when the producer's end-of-stream
 announcement has been matched by the messages received, when no input came for
 ``idle_flush_s`` or when a gap exceeds ``max_gap_s``; new data then start a new trial.
 """
@@ -37,7 +46,7 @@ from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.nodes.input_gate import Sample, TrialClock
 from nmt_ros.nodes.node_base import TrackerNode
-from nmt_ros.nodes.node_status import ERROR
+from nmt_ros.nodes.node_status import ERROR, OK, WARN
 from nmt_ros.nodes.runtime import run_node
 from nmt_ros.topics import (
     FORCE_PLATE_WRENCH,
@@ -45,10 +54,13 @@ from nmt_ros.topics import (
     SKELETAL_GENERALIZED_COORDINATES,
     SKELETAL_GROUND_WRENCH,
     SKELETAL_JOINT_TORQUES,
+    SKELETAL_LOW_LATENCY,
     SKELETAL_SEGMENT_ANGLES,
     WRENCH_FRAME,
 )
 from nmt_ros.tracking.conditioning import ConditioningSettings
+from nmt_ros.tracking.moving_horizon.estimator import EstimateBlock, MovingHorizonEstimator
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.streaming import Stage1Output, Stage1Stream
 
@@ -61,10 +73,25 @@ class SkeletalTrackerNode(TrackerNode):
     INPUTS = {MOCAP_SEGMENT_ANGLES: JointState, FORCE_PLATE_WRENCH: WrenchStamped}
     OUTPUTS = {SKELETAL_JOINT_TORQUES: JointState, SKELETAL_SEGMENT_ANGLES: JointState,
                SKELETAL_GENERALIZED_COORDINATES: JointState, SKELETAL_GROUND_WRENCH: WrenchStamped}
+    OUTPUTS.update({SKELETAL_LOW_LATENCY[k]: v for k, v in OUTPUTS.items()})
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.param
+        self.estimator = p('estimator', 'mhe', "Stage 1: 'mhe' (the moving-horizon estimator: "
+                           "low-latency and refined estimates) or 'skt' (the paper's tracker)")
+        if self.estimator not in ('mhe', 'skt'):
+            self.fail_to_start(f"estimator must be 'mhe' or 'skt', not {self.estimator!r}")
+        d = MovingHorizonSettings()
+        self.lag_s = p('lag_s', d.lag_s, 'mhe: the refined estimate lags the newest data by '
+                       'this [s] (latency vs accuracy: bench/bench_estimator.py)', low=0.0,
+                       high=1.0)
+        self.window_s = p('window_s', d.window_s, 'mhe: data span of the window [s] (>= lag '
+                          '+ one update)', low=0.01, high=2.0)
+        self.update_rate_hz = p('update_rate_hz', d.update_rate_hz, 'mhe: updates per second '
+                                'of data (CPU vs latency)', low=1.0, high=2000.0)
+        self.iterations = p('iterations', d.iterations, 'mhe: Gauss-Newton iterations per '
+                            'update', low=1, high=20)
         self.lookahead_s = p('lookahead_s', 0.1, 'look-ahead of the zero-lag filters [s]: '
                              'latency vs accuracy (bench/bench_latency.py)', low=0.0, high=2.0)
         self.filter_window_s = p('filter_window_s', 0.5, 'history the live filter keeps [s]',
@@ -103,34 +130,51 @@ class SkeletalTrackerNode(TrackerNode):
         self.conditioning = ConditioningSettings(
             angle_cutoff_hz=self.angle_cutoff_hz, force_cutoff_hz=self.force_cutoff_hz,
             lookahead_s=self.lookahead_s, window_s=self.filter_window_s)
+        self.mhe_settings = d.with_(lag_s=self.lag_s, window_s=self.window_s,
+                                    update_rate_hz=self.update_rate_hz,
+                                    iterations=self.iterations,
+                                    angle_rate_hz=self.angle_rate_hz,
+                                    wrench_rate_hz=self.wrench_rate_hz)
         self.status.settings = {
-            'lookahead_s': self.lookahead_s, 'substeps': self.substeps,
-            'angle_cutoff_hz': self.angle_cutoff_hz, 'force_cutoff_hz': self.force_cutoff_hz,
-            'filter_window_s': self.filter_window_s, 'wrench_rate_hz': self.wrench_rate_hz,
-            'angle_rate_hz': self.angle_rate_hz, 'bias_rate': self.bias_rate}
+            'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
+            'update_rate_hz': self.update_rate_hz, 'lookahead_s': self.lookahead_s,
+            'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
+            'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
+            'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
+            'bias_rate': self.bias_rate}
 
-        # the numerical core (built before any input is accepted)
+        # the numerical core (built before any input is accepted: the estimator's compiled
+        # kernel is made or loaded here, not at the first sample)
         self.model = default_model()
         self.stream = Stage1Stream(self.model, self.settings, self.conditioning,
                                    angle_rate_hz=self.angle_rate_hz,
                                    wrench_rate_hz=self.wrench_rate_hz)
+        self.mhe = (MovingHorizonEstimator(self.model, self.mhe_settings)
+                    if self.estimator == 'mhe' else None)
+        self.events_seen = 0
+        self.masked = 0
         self.clock = TrialClock(self.epoch_ns)
         self.gates = self.stream_gates({MOCAP_SEGMENT_ANGLES: 1 / self.angle_rate_hz,
                                         FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz})
         self.polled_until = -np.inf
         self.first_pending = np.inf
-        self.create_timer(self.poll_period_s, self.poll)
+        if self.estimator == 'skt':
+            self.create_timer(self.poll_period_s, self.poll)
         self.listen()
 
     # ------------------------------------------------------------------ inputs
     def parse(self, topic: str, msg: JointState | WrenchStamped) -> tuple[int, np.ndarray]:
+        lenient = self.estimator == 'mhe'
         if topic == MOCAP_SEGMENT_ANGLES:
-            sample = from_joint_state(msg, SEGMENTS, require=('position',))
+            sample = from_joint_state(msg, SEGMENTS, require=('position',), allow_nan=lenient)
             return sample.stamp_ns, sample.position
-        return from_planar_wrench(msg, self.wrench_frame or None)
+        return from_planar_wrench(msg, self.wrench_frame or None, allow_nan=lenient)
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
              received: float) -> None:
+        if self.estimator == 'mhe':
+            self._feed_mhe(topic, samples, stamp_ns, received)
+            return
         if self.stream.status != 'ok':
             return
         add = self.stream.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.stream.add_wrench
@@ -150,16 +194,61 @@ class SkeletalTrackerNode(TrackerNode):
         received, self.first_pending = self.first_pending, np.inf
         self._publish(self.stream.poll(), received)
 
+    def _feed_mhe(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
+                  received: float) -> None:
+        """Every accepted sample into the estimator; publish what its updates produced (the
+        updates run on data time: when they run does not depend on arrival timing)."""
+        add = self.mhe.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.mhe.add_wrench
+        for sample in samples:
+            missing = int(np.isnan(sample.values).sum())
+            if missing:
+                self.masked += missing
+                self.status.extra['missing_values'] = self.masked
+            try:
+                add(self.clock.t(sample.stamp_ns), sample.values)
+            except ValueError as exc:          # a sample later than the update it belongs to
+                self.status.reject(topic, f'{topic}: {exc}')
+        self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
+        self.first_pending = min(self.first_pending, received)
+        blocks = self.mhe.poll()
+        if blocks:
+            received, self.first_pending = self.first_pending, np.inf
+            self._publish_blocks(blocks, received)
+        self._report_events()
+        self._check_end()
+
+    def _report_events(self) -> None:
+        levels = {'info': OK, 'warn': WARN, 'error': ERROR}
+        new = self.mhe.events[self.events_seen:]
+        self.events_seen = len(self.mhe.events)
+        for ev in new:
+            self.status.event(levels[ev.level], f't = {ev.t:.4f} s: {ev.message}',
+                              **ev.values)
+            if ev.level == 'error':
+                self.status.error = ev.message
+        if new:
+            self.status.extra['restarts'] = self.mhe.restarts
+            self.notify()
+
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
         self.polled_until = -np.inf
         self.first_pending = np.inf
         self.status.extra['epoch_ns'] = epoch_ns
+        if self.mhe is not None:
+            self.mhe = MovingHorizonEstimator(self.model, self.mhe_settings)
+            self.events_seen = 0
 
     def flush(self) -> None:
+        if self.mhe is not None:
+            self._publish_blocks(self.mhe.finish(), time.monotonic())
+            self._report_events()
+            return
         self._publish(self.stream.finish(), time.monotonic())
 
     def end_state(self) -> str:
+        if self.mhe is not None:
+            return 'finished'
         return 'lost_control' if self.stream.status != 'ok' else 'finished'
 
     # ------------------------------------------------------------------ outputs
@@ -188,9 +277,35 @@ class SkeletalTrackerNode(TrackerNode):
         if np.isfinite(received):
             self.status.delay(time.monotonic() - received)
 
+    def _publish_blocks(self, blocks: list[EstimateBlock], received: float) -> None:
+        """Refined blocks on the main topics, low-latency ones on the low-latency topics."""
+        for block in blocks:
+            if block.t.size == 0:
+                continue
+            stamps = self.clock.stamps(block.t)
+            topics = {
+                SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
+                    stamps, JOINTS, position=block.theta, velocity=block.theta_dot,
+                    effort=block.tau),
+                SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
+                    stamps, SEGMENTS, position=block.q[:, :4], velocity=block.qd[:, :4]),
+                SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
+                    stamps, Q_NAMES, position=block.q, velocity=block.qd),
+                SKELETAL_GROUND_WRENCH: planar_wrenches_from_arrays(stamps, WRENCH_FRAME,
+                                                                    block.s),
+            }
+            if block.kind == 'low_latency':
+                topics = {SKELETAL_LOW_LATENCY[k]: v for k, v in topics.items()}
+            self.publish_batches(stamps, topics)
+            if block.kind == 'refined' and np.isfinite(received):
+                self.status.delay(time.monotonic() - received)
+
     def status_values(self) -> None:
         super().status_values()
-        self.status.extra['final_until_s'] = float(self.stream.final_until)
+        if self.mhe is not None:
+            self.status.extra['updated_until_s'] = float(self.mhe.updated_until)
+        else:
+            self.status.extra['final_until_s'] = float(self.stream.final_until)
 
 
 def main(args: Sequence[str] | None = None) -> int:

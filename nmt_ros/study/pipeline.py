@@ -25,9 +25,13 @@ from nmt_ros.tracking.neuromuscular_tracker import (
 from nmt_ros.tracking.skeletal_tracker import SKTSettings, initial_state, reference_arrays
 from nmt_ros.tracking.streaming import track_stage1
 
-STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle')
+STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle', 'mhe')
 STAGE1_LABELS = {'skt': 'SKT', 'optimal': 'optimal tracking',
-                 'optimal_muscle': 'optimal tracking (muscles)'}
+                 'optimal_muscle': 'optimal tracking (muscles)',
+                 'mhe': 'moving-horizon estimator (refined)'}
+#: Records longer than this [s] are not simulated open loop by the NMT simulation (the
+#: stance before and after a jump is unstable without feedback): a single push-off is.
+NMT_SIMULATION_MAX_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,7 @@ class NMTSettings:
     rate_hz: float = 1080.0
     stage2_margin_s: float = 0.01        # Stage 2 runs until Stage-1 lift-off + this
     flight_s: float = 0.02               # the NMT simulation runs past its lift-off by this
+    mhe: object = None                   # MovingHorizonSettings (None: its defaults)
 
 
 @dataclass
@@ -100,10 +105,22 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, settings.conditioning)
     cpu['conditioning'] = time.process_time() - c
 
-    say('Stage 1: skeletal motion tracker')
-    skt = track_stage1(model, cond, settings.skt, settings.rate_hz)
-    cpu['stage1'] = skt.cpu_s + cpu['conditioning']
-    if settings.stage1 in STAGE1_METHODS[1:] and skt.t.size >= 2:
+    if settings.stage1 == 'mhe':
+        from nmt_ros.tracking.moving_horizon.estimator import estimate
+
+        say('Stage 1: moving-horizon estimator (the live estimator fed the whole record)')
+        mhe = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
+                       settings.mhe)
+        skt = mhe.refined
+        cpu['stage1'] = skt.cpu_s
+        for e in mhe.events:
+            if e.level != 'info':
+                say(f'  {e.level} at {e.t:.3f} s: {e.message}')
+    else:
+        say('Stage 1: skeletal motion tracker')
+        skt = track_stage1(model, cond, settings.skt, settings.rate_hz)
+        cpu['stage1'] = skt.cpu_s + cpu['conditioning']
+    if settings.stage1 in ('optimal', 'optimal_muscle') and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 
         actuation = 'muscle' if settings.stage1 == 'optimal_muscle' else 'torque'
@@ -127,6 +144,8 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
             skt.events = skt.events + [{'t': 0.0, 'reason': f'optimal tracking: {opt.status}'}]
     elif settings.stage1 not in STAGE1_METHODS:
         raise ValueError(f'stage1 must be one of {STAGE1_METHODS}, not {settings.stage1!r}')
+    if settings.stage1 == 'mhe':
+        return _run_streamed(model, obs, settings, cond, skt, cpu, say)
     if not skt.ok:
         say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
             f'{skt.events[0]["t"]:.3f} s')
@@ -158,5 +177,44 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         nmt_sim = simulate_stage2(model, stage2, skt.q[0], skt.qd[0], skt.x0,
                                   float(stage2.t[-1]) + settings.flight_s, settings.rate_hz)
         cpu['nmt_simulation'] = time.process_time() - c
+    cpu['nmt_total'] = cpu['stage1'] + cpu.get('stage2', 0.0)
+    return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu)
+
+
+def _run_streamed(model: JumperModel, obs: Observations, settings: NMTSettings,
+                  cond: ConditionedObservations, skt: SKTResult, cpu: dict,
+                  say: callable) -> NMTRun:
+    """The streaming path (Stage 1 by the moving-horizon estimator): Stage 2 by the live
+    receding-horizon stream over the whole record (every phase, flights included), the IVD
+    baseline, and the NMT simulation only for a single push-off (``NMT_SIMULATION_MAX_S``)."""
+    from nmt_ros.tracking.streaming import track_stage2
+
+    say('IVD baseline')
+    c = time.process_time()
+    init = initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt)
+    ivd = inverse_dynamics_baseline(model, cond, init, settings.rate_hz)
+    if obs.t_wrench[-1] <= NMT_SIMULATION_MAX_S:
+        ivd = simulate_open_loop(model, ivd, init, settings.rate_hz)
+    cpu['ivd'] = time.process_time() - c
+    stage2 = nmt_sim = None
+    a0 = np.zeros(len(model.p.muscles.names))
+    if skt.t.size >= 2:
+        say('Stage 2: neuromuscular tracker (receding windows, as live)')
+        c = time.process_time()
+        overrides = {} if settings.stage2_k_r is None else {'k_r': float(settings.stage2_k_r)}
+        tracker = NeuromuscularTracker(model, load_stage2_settings(**overrides))
+        theta, = model.batch(model.joint_angles, skt.q)
+        theta_dot, = model.batch(model.joint_angles, skt.qd)
+        stage2 = track_stage2(model, skt.t, skt.tau, theta, theta_dot, tracker,
+                              settings.window_length_s or 0.1, rate_hz=settings.rate_hz)
+        a0 = stage2.a[0].copy()
+        cpu['stage2'] = time.process_time() - c
+        if skt.t[-1] - skt.t[0] <= NMT_SIMULATION_MAX_S:
+            say('NMT forward simulation (muscles driven by the Stage-2 excitations)')
+            c = time.process_time()
+            k0 = int(np.searchsorted(skt.t, stage2.t[0] - 1e-9))
+            nmt_sim = simulate_stage2(model, stage2, skt.q[k0], skt.qd[k0], skt.x0,
+                                      float(stage2.t[-1]), settings.rate_hz)
+            cpu['nmt_simulation'] = time.process_time() - c
     cpu['nmt_total'] = cpu['stage1'] + cpu.get('stage2', 0.0)
     return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu)

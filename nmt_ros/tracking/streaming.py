@@ -41,7 +41,11 @@ from nmt_ros.tracking.conditioning import (
     ConditioningSettings,
     FixedLagConditioner,
 )
-from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, StreamState
+from nmt_ros.tracking.neuromuscular_tracker import (
+    NeuromuscularTracker,
+    Stage2Result,
+    StreamState,
+)
 from nmt_ros.tracking.skeletal_tracker import (
     SkeletalTracker,
     SKTSettings,
@@ -421,3 +425,61 @@ class Stage2Stream:
         return Stage2Output(stamp_ns=np.array(stamps, dtype=np.int64), t=t_out,
                             f=np.vstack(f), a=np.vstack(a), u=np.vstack(u), l_mt=l_mt,
                             v_mt=v_mt, saturated=np.vstack(sat))
+
+
+def track_stage2(model: JumperModel, t: np.ndarray, tau: np.ndarray, theta: np.ndarray,
+                 theta_dot: np.ndarray, tracker: NeuromuscularTracker | None = None,
+                 window_length_s: float = 0.1, window_stride_s: float | None = 0.01,
+                 rate_hz: float = 1080.0, max_gap_s: float = 0.5,
+                 chunk_s: float = 0.05) -> Stage2Result:
+    """Batch Stage 2 = the live one: :class:`Stage2Stream` fed a Stage-1 record (joint
+    torques tau, angles theta and rates theta_dot [n, 3] at times t [n], on the grid
+    k / rate_hz, gaps allowed) in chunks of ``chunk_s``. A gap longer than ``max_gap_s``
+    ends a trial (the next sample starts one, as in the node); shorter ones are filled by
+    linear interpolation on the grid (as the node's input gate does). Returns the muscles on
+    the grid instants they cover."""
+    tracker = tracker if tracker is not None else NeuromuscularTracker(model)
+    t = np.asarray(t, dtype=float)
+    k = np.rint(t * rate_hz).astype(np.int64)
+    cuts = np.nonzero(np.diff(t) > max_gap_s)[0] + 1
+    parts = []
+    for seg in np.split(np.arange(t.size), cuts):
+        grid = np.arange(k[seg[0]], k[seg[-1]] + 1)
+        tg = grid / rate_hz
+        parts.append((tg, *(np.column_stack([np.interp(tg, t[seg], x[seg, j])
+                                             for j in range(x.shape[1])])
+                            for x in (tau, theta, theta_dot))))
+    t = np.concatenate([p[0] for p in parts])
+    tau, theta, theta_dot = (np.concatenate([p[i] for p in parts]) for i in (1, 2, 3))
+    cuts = np.cumsum([p[0].size for p in parts])[:-1]
+    outs: list[Stage2Output] = []
+    c0 = time.process_time()
+    for seg in np.split(np.arange(t.size), cuts):
+        if seg.size < 2:
+            continue
+        stream = Stage2Stream(model, tracker, window_length_s, window_stride_s, rate_hz)
+        next_chunk = t[seg[0]] + chunk_s
+        for i in seg:
+            stream.add(int(round(t[i] * 1e9)), t[i], tau[i], theta[i], theta_dot[i])
+            if t[i] >= next_chunk:
+                out = stream.process()
+                next_chunk = t[i] + chunk_s
+                if out is not None:
+                    outs.append(out)
+        out = stream.process(final=True)
+        if out is not None:
+            outs.append(out)
+    cpu = time.process_time() - c0
+    names = tuple(model.p.muscles.names)
+    if not outs:
+        raise ValueError('Stage 2 produced no output (fewer than two Stage-1 samples)')
+    cat = {f: np.concatenate([getattr(o, f) for o in outs]) for f in ('t', 'f', 'a', 'u')}
+    k = np.clip(np.searchsorted(t, cat['t'] - 1e-9), 0, t.size - 1)
+    C, = model.batch(model.moment_arm_matrix, theta[k])
+    m = len(names)
+    return Stage2Result(
+        mode='streamed', names=names, t=cat['t'], f=cat['f'], a=cat['a'], u=cat['u'],
+        u_demand=cat['u'], eta=np.zeros_like(cat['f']), tau_ref=tau[k],
+        tau_muscle=np.einsum('nij,nj->ni', C, cat['f']), W=np.zeros((cat['t'].size, 0, m)),
+        g=np.zeros((cat['t'].size, 0)), cpu_s={'total': cpu}, window_length=window_length_s,
+        window_stride=window_stride_s)

@@ -23,12 +23,14 @@ initialisation from the newest data.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import time
 
 import numpy as np
 
 from nmt_ros.model.compiled import compiled
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.squat import rest_activations
+from nmt_ros.records import SKTResult
 from nmt_ros.tracking.moving_horizon.point_functions import (
     PointMap,
     excitation,
@@ -465,3 +467,71 @@ def _fill_nan(t: np.ndarray, y: np.ndarray) -> np.ndarray:
         if ok.any() and not ok.all():
             y[~ok, c] = np.interp(t[~ok], t[ok], y[ok, c])
     return y
+
+
+@dataclass
+class MovingHorizonRun:
+    """The estimator run over a whole recording (``estimate``): the refined and low-latency
+    estimates as Stage-1 records on the force-plate instants, the estimator's events and the
+    CPU time of each update [s]."""
+
+    refined: SKTResult
+    low_latency: SKTResult
+    events: list[EstimatorEvent]
+    update_cpu_s: np.ndarray
+    restarts: int
+
+
+def _stage1_record(model: JumperModel, blocks: list[EstimateBlock], events: list,
+                   cpu_s: float) -> SKTResult:
+    """Concatenated estimate blocks as a Stage-1 record (``muscles`` holds a, u, f; events
+    as dicts with 't', 'level', 'reason' and their values)."""
+    events = [{'t': e.t, 'level': e.level, 'reason': e.message, **e.values} for e in events]
+    if not blocks:
+        empty = np.zeros((0, 6))
+        return SKTResult(t=np.zeros(0), q=empty, qd=empty, qdd=empty, tau=np.zeros((0, 3)),
+                         s=np.zeros((0, 3)), bias=np.zeros(0), residual=np.zeros((0, 7)),
+                         x0=np.zeros(2), status='lost_control', events=events, cpu_s=cpu_s)
+    cat = {f: np.concatenate([getattr(b, f) for b in blocks])
+           for f in ('t', 'q', 'qd', 'qdd', 'tau', 'f', 'a', 'u', 's')}
+    plate = np.concatenate([np.repeat(b.plate[None], b.t.size, 0) for b in blocks])
+    moment_bias = plate[:, PLATE['b']][:, 2] + plate[:, PLATE['cop']][:, 0] * cat['s'][:, 1]
+    res = SKTResult(t=cat['t'], q=cat['q'], qd=cat['qd'], qdd=cat['qdd'], tau=cat['tau'],
+                    s=cat['s'], bias=moment_bias, residual=np.zeros((cat['t'].size, 7)),
+                    x0=model.anchors_at(cat['q'][0]), status='ok', events=events,
+                    cpu_s=cpu_s, muscles={'a': cat['a'], 'u': cat['u'], 'f': cat['f']})
+    from nmt_ros.tracking.skeletal_tracker import liftoff_time
+
+    res.liftoff_s = liftoff_time(res.t, res.s[:, 1], 0.02 * model.p.body_weight)
+    return res
+
+
+def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
+             t_wrench: np.ndarray, wrench: np.ndarray,
+             settings: MovingHorizonSettings | None = None) -> MovingHorizonRun:
+    """The streaming estimator fed a whole recording in time order (offline = live: the same
+    object, the same updates). Samples at equal times: angles first."""
+    c0 = time.process_time()
+    est = MovingHorizonEstimator(model, settings)
+    order = sorted([(float(t), 0, i) for i, t in enumerate(t_angles)]
+                   + [(float(t), 1, i) for i, t in enumerate(t_wrench)])
+    blocks: list[EstimateBlock] = []
+    cpu = []
+    for t, k, i in order:
+        if k == 0:
+            est.add_angles(t, angles[i])
+        else:
+            est.add_wrench(t, wrench[i])
+        n = est.updates
+        c = time.process_time()
+        blocks += est.poll()
+        if est.updates != n:
+            cpu.append(time.process_time() - c)
+    blocks += est.finish()
+    total = time.process_time() - c0
+    refined = _stage1_record(model, [b for b in blocks if b.kind == 'refined'], est.events,
+                             total)
+    low = _stage1_record(model, [b for b in blocks if b.kind == 'low_latency'], est.events,
+                         total)
+    return MovingHorizonRun(refined=refined, low_latency=low, events=est.events,
+                            update_cpu_s=np.array(cpu), restarts=est.restarts)
