@@ -201,10 +201,15 @@ class JumperModel:
 
     # ------------------------------------------------------------------ derived quantities
     @cached_property
+    def ankle_height(self) -> float:
+        """Height [m] of the ankle centre (r2) when the foot is at angle 0 and its lowest
+        contact point touches the undeformed ground (y = 0): the standing pose's r2."""
+        return -float(self.p.contact.points[:, 1].min())
+
+    @cached_property
     def standing_com_height(self) -> float:
         """COM height [m] standing upright: all angles 0, foot points on the ground (y = 0)."""
-        ankle_height = -float(self.p.contact.points[:, 1].min())
-        q = np.array([0, 0, 0, 0, 0, ankle_height], dtype=float)
+        q = np.array([0, 0, 0, 0, 0, self.ankle_height], dtype=float)
         return float(self.call(self.com, q)[0][1])
 
     def anchors_at(self, q: np.ndarray) -> np.ndarray:

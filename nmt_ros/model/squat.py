@@ -51,12 +51,10 @@ def segment_angles_from_joints(joint_deg: tuple[float, float, float], foot_tilt:
 def _posture(model: JumperModel, joint_deg: tuple[float, float, float]) -> tuple[np.ndarray,
                                                                                 np.ndarray]:
     """Solve (th1, r2) with tau free: whole-body vertical force and moment balance."""
-    ankle_height = -float(model.p.contact.points[:, 1].min())
-
     def pose(z: np.ndarray) -> np.ndarray:
         q = np.zeros(6)
         q[:4] = segment_angles_from_joints(joint_deg, z[0])
-        q[5] = ankle_height + z[1]
+        q[5] = model.ankle_height + z[1]
         return q
 
     def residual(z: np.ndarray) -> np.ndarray:

@@ -281,8 +281,7 @@ def _static_residual(model: JumperModel, st: SKTSettings) -> ca.Function:
     z = ca.SX.sym('z', 5)
     th_obs = ca.SX.sym('theta_obs', 4)
     m_obs = ca.SX.sym('moment_obs')
-    ankle_h = -float(model.p.contact.points[:, 1].min())
-    q = ca.vertcat(z[0:4], 0.0, ankle_h + z[4])
+    q = ca.vertcat(z[0:4], 0.0, model.ankle_height + z[4])
     zero = ca.DM.zeros(6)
     x0 = model.positions(q)[4][0, :].T
     gen = model.inertial_gravity(q, zero) + model.contact_generalized(q, zero, x0)
@@ -317,7 +316,7 @@ def initial_state(model: JumperModel, ref0: np.ndarray,
     from scipy.optimize import least_squares
 
     st = settings
-    ankle_h = -float(model.p.contact.points[:, 1].min())
+    ankle_h = model.ankle_height
     zero = np.zeros(6)
 
     def pose(z: np.ndarray) -> np.ndarray:
