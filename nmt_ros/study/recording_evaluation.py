@@ -155,9 +155,10 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
 def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None = None,
                   *, batch: bool = True) -> dict[str, Any]:
     """The demo's numbers (see the module docstring) as a JSON-ready dict."""
+    from nmt_ros.model.contact import liftoff_time
     from nmt_ros.model.jumper import default_model
     from nmt_ros.study.metrics import jump_from
-    from nmt_ros.tracking.skeletal_tracker import SKTSettings, liftoff_time
+    from nmt_ros.tracking.skeletal_tracker import SKTSettings
 
     recording = Path(recording)
     statuses = final_statuses(recording)

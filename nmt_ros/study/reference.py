@@ -263,12 +263,12 @@ class Simulation:
 
 def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
                          excitation: callable, t_end: float, t_eval: np.ndarray | None = None,
-                         liftoff_force: float = 1.0, rtol: float = 1e-9,
+                         liftoff_force: float = contact_law.LIFTOFF_FORCE_N, rtol: float = 1e-9,
                          atol: float = 1e-10) -> Simulation:
     """Integrate Eq. 1 + Eq. 8 with a stiff implicit integrator (Radau, exact Jacobian).
 
-    ``excitation(t) -> u[9]``. Lift-off is detected as the first downward crossing of the
-    total vertical ground force through ``liftoff_force`` [N] after it has exceeded it.
+    ``excitation(t) -> u[9]``. Lift-off: the contact module's rule (``liftoff_event``) on the
+    total vertical ground force with threshold ``liftoff_force`` [N].
     """
     fode = model.musculoskeletal_ode
     fjac = model.musculoskeletal_jacobian
@@ -280,10 +280,8 @@ def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
     def jac(t: float, y: np.ndarray) -> np.ndarray:
         return np.asarray(fjac(y, excitation(t), x0))
 
-    def liftoff(t: float, y: np.ndarray) -> float:
-        return float(np.asarray(fs(y[:6], y[6:12], x0))[1, 0]) - liftoff_force
-
-    liftoff.direction = -1
+    liftoff = contact_law.liftoff_event(
+        lambda y: float(np.asarray(fs(y[:6], y[6:12], x0))[1, 0]), liftoff_force)
     sol = solve_ivp(rhs, (0.0, t_end), x_init, method='Radau', jac=jac, rtol=rtol,
                     atol=atol, t_eval=t_eval, events=liftoff, dense_output=False)
     ev = sol.t_events[0]
@@ -379,14 +377,14 @@ def make_reference(model: JumperModel, settings: POSettings = POSettings(), star
 
 def simulate_musculoskeletal_rk4(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
                                  excitation: callable, t_end: float, rate_hz: float = 1080.0,
-                                 substeps: int = 4, liftoff_force: float = 1.0) -> Simulation:
+                                 substeps: int = 4,
+                                 liftoff_force: float = contact_law.LIFTOFF_FORCE_N) -> Simulation:
     """Eq. 1 + Eq. 8 with fixed-step RK4, recorded at ``rate_hz`` (fast; for piecewise inputs).
 
     The excitation is evaluated at each step's start and held over the step (zero-order hold
     on the integration grid), which suits the piecewise-constant Stage-2 excitations.
     """
     from nmt_ros.model.integrate import rk4_integrate
-    from nmt_ros.tracking.skeletal_tracker import liftoff_time
 
     fode = model.musculoskeletal_ode
     h = 1.0 / (rate_hz * substeps)
@@ -403,5 +401,5 @@ def simulate_musculoskeletal_rk4(model: JumperModel, x_init: np.ndarray, x0: np.
     s, = model.batch(model.contact_outputs, y[:, :6], y[:, 6:12], x0)
     u = np.array([excitation(ti) for ti in t])
     return Simulation(t=t, x=y, u=u, x0=np.asarray(x0, dtype=float),
-                      liftoff_s=liftoff_time(t, s[:, 1], liftoff_force), success=True,
+                      liftoff_s=contact_law.liftoff_time(t, s[:, 1], liftoff_force), success=True,
                       message='RK4')

@@ -15,10 +15,11 @@ import time
 
 import numpy as np
 
+from nmt_ros.model.contact import liftoff_time
 from nmt_ros.model.integrate import rk4_integrate
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.conditioning import ConditionedObservations
-from nmt_ros.tracking.skeletal_tracker import SKTState, liftoff_time
+from nmt_ros.tracking.skeletal_tracker import SKTState
 
 
 @dataclass

@@ -39,10 +39,10 @@ import time
 import casadi as ca
 import numpy as np
 
+from nmt_ros.model.contact import liftoff_time
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.records import Observations, SKTResult
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
-from nmt_ros.tracking.skeletal_tracker import liftoff_time
 
 _QDD_SCALE = 100.0   # rad/s^2 or m/s^2 per unit of an acceleration variable
 _TAU_SCALE = 100.0   # N m per unit of a torque variable
@@ -70,7 +70,7 @@ class OptimalTrackingSettings:
     # and hip torque error under the paper's noise (seeds 0-11, both bias shapes), for a
     # smoothing bias of 0.35 % of peak on noise-free data.
     excitation_rate_weight: float = 1e-2
-    liftoff_force_bw: float = 0.02
+    liftoff_force_bw: float = OBSERVATION_NOISE.force_sd_bw   # the plate's noise (contact.py)
     tol: float = 1e-6
     # The fit ends this long after the guess's lift-off (None: the whole record; also when
     # the guess has no lift-off). Flight adds little (the body is ballistic) but the NLP's

@@ -76,9 +76,10 @@ class SKTSettings:
     fd_step: float = 1e-6            # central-difference step for numerical Jacobians
     substeps: int = 2                # RK4 steps per force-plate sample (h = 0.46 ms)
     static_start: bool = True        # the trial starts at rest (the paper's static squat)
-    # Lift-off of the tracked model: its vertical force falls below the force plate's noise
-    # level (the tracker follows the noisy ~0 N observations in flight with small contact).
-    liftoff_force_bw: float = 0.02
+    # Lift-off of the tracked model (the rule of model/contact.py): its vertical force falls
+    # below the force plate's noise SD (it follows the noisy ~0 N observations in flight with
+    # a small contact force), from the observation specification.
+    liftoff_force_bw: float = OBSERVATION_NOISE.force_sd_bw
     # Tracking ends this long after the tracked model's lift-off (None: never). In flight only
     # the angles remain as outputs and, for this jump, the joints swing into their stiff
     # ligament limits, where noisy angles demand unbounded torques; the study needs the
@@ -364,17 +365,3 @@ def reference_arrays(cond: ConditionedObservations, t: np.ndarray) -> np.ndarray
     smp = cond.sample(t)
     return np.hstack([smp['theta'], smp['theta_dot'], smp['theta_ddot'], smp['s'],
                       smp['s_dot']])
-
-
-def liftoff_time(t: np.ndarray, fy: np.ndarray, threshold: float = 1.0) -> float:
-    """First downward crossing of ``threshold`` N after the force exceeded it (interpolated)."""
-    above = fy > threshold
-    if not above.any():
-        return float('nan')
-    start = int(np.argmax(above))
-    below = np.nonzero(~above[start:])[0]
-    if below.size == 0:
-        return float('nan')
-    i = start + int(below[0])
-    f0, f1 = fy[i - 1], fy[i]
-    return float(t[i - 1] + (t[i] - t[i - 1]) * (f0 - threshold) / (f0 - f1))

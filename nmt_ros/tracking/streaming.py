@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 
+from nmt_ros.model.contact import LiftoffDetector, liftoff_time
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.squat import rest_activations
 from nmt_ros.records import SKTResult
@@ -51,7 +52,6 @@ from nmt_ros.tracking.skeletal_tracker import (
     SKTSettings,
     SKTState,
     initial_state,
-    liftoff_time,
     reference_arrays,
 )
 
@@ -113,8 +113,8 @@ class Stage1Stream:
         self.status = 'ok'            # 'ok' | 'lost_control'
         self.events: list[dict] = []
         self.ended_s: float | None = None   # trial time where tracking ended in flight
-        self._loaded = False                # the model has carried load since the start
-        self._liftoff_s: float | None = None
+        self._liftoff = LiftoffDetector(self.settings.liftoff_force_bw
+                                        * self.model.p.body_weight)
         self.finished = False
 
     @property
@@ -149,20 +149,14 @@ class Stage1Stream:
         return self._advance(None)
 
     def _flight_end(self, t_blk: np.ndarray, fy: np.ndarray) -> int | None:
-        """Index in the block after which tracking ends (flight), or None."""
+        """Index in the block after which tracking ends (flight_tracking_s after the sample
+        at which the tracked model's lift-off became known), or None."""
         st = self.settings
         if st.flight_tracking_s is None:
             return None
-        threshold = st.liftoff_force_bw * self.model.p.body_weight
-        for i, (t, f) in enumerate(zip(t_blk, fy)):
-            if self._liftoff_s is None:
-                if f > threshold:
-                    self._loaded = True
-                elif self._loaded:
-                    self._liftoff_s = float(t)
-            if self._liftoff_s is not None and t > self._liftoff_s + st.flight_tracking_s:
-                return i
-        return None
+        self._liftoff.update(t_blk, fy)
+        late = np.flatnonzero(t_blk > self._liftoff.known_s + st.flight_tracking_s)
+        return int(late[0]) if late.size else None
 
     def _advance(self, t_end: float | None) -> Stage1Output | None:
         """Step over every output sample the data now allow; their outputs (None if none)."""
