@@ -45,8 +45,8 @@ class Motion:
 @lru_cache(maxsize=1)
 def push_off() -> Motion:
     from nmt_ros.model.jumper import default_model
+    from nmt_ros.model.simulation import simulate_excitations
     from nmt_ros.model.squat import solve_static_squat
-    from nmt_ros.study.reference import simulate_excitations
 
     start = time.perf_counter()
     model = default_model()

@@ -9,9 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from nmt_ros.model.simulation import held, simulate_excitations
 from nmt_ros.study.metrics import jump_from
 from nmt_ros.study.observations import ObservationSettings, make_observations
-from nmt_ros.study.reference import simulate_musculoskeletal_rk4
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 from nmt_ros.tracking.streaming import track_stage1
@@ -84,14 +84,9 @@ def test_excitations_are_bounded_and_reproduce_the_motion(model, truth, shipped)
     mus = shipped.muscles
     for key in ('a', 'u'):
         assert mus[key].min() >= -1e-9 and mus[key].max() <= 1 + 1e-9
-    t_u, u = shipped.t, mus['u']
-
-    def excitation(t):
-        return u[min(int(np.searchsorted(t_u, t + 1e-12, side='right')) - 1, len(t_u) - 1)]
-
     x_init = np.concatenate([shipped.q[0], shipped.qd[0], mus['a'][0]])
-    sim = simulate_musculoskeletal_rk4(model, x_init, shipped.x0, excitation,
-                                       shipped.liftoff_s + 0.01, 1080.0)
+    sim = simulate_excitations(model, x_init, shipped.x0, held(shipped.t, mus['u']),
+                               shipped.liftoff_s + 0.01, method='rk4', rate_hz=1080.0)
     k = np.searchsorted(shipped.t, sim.t[sim.t <= shipped.liftoff_s] - 1e-9)
     assert np.degrees(np.abs(sim.x[:k.size, :4] - shipped.q[k, :4])).max() < 0.5
     assert abs(sim.liftoff_s - shipped.liftoff_s) < 0.002

@@ -12,8 +12,9 @@ from nmt_ros.io.bags import read_arrays
 from nmt_ros.io.opensim_files import read_table
 from nmt_ros.io.trial_bag import read_observations
 from nmt_ros.model.parameters import JOINTS, SEGMENTS
+from nmt_ros.model.simulation import simulate_excitations
 from nmt_ros.study.observations import ObservationSettings, make_observations
-from nmt_ros.study.reference import POSettings, excitation_at, make_reference, simulate_excitations
+from nmt_ros.study.reference import POSettings, excitation_at, make_reference
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / 'bags' / 'reference_jump'

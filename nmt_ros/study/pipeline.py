@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.simulation import Simulation, held, simulate_excitations
 from nmt_ros.records import MuscleEstimates, Observations, SKTResult, TrialEstimates
-from nmt_ros.study.reference import Simulation, simulate_musculoskeletal_rk4
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
 from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
 from nmt_ros.tracking.neuromuscular_tracker import (
@@ -86,14 +86,9 @@ def simulate_stage2(model: JumperModel, stage2: Stage2Result, q0: np.ndarray, qd
                     x0: np.ndarray, t_end: float, rate_hz: float = 1080.0) -> Simulation:
     """The NMT forward simulation: the musculoskeletal model driven by Stage 2's excitations
     (held between its samples) from the tracked initial state and Stage 2's activations."""
-    t_u, u = stage2.t, stage2.u
-
-    def excitation(t: float) -> np.ndarray:
-        i = int(np.searchsorted(t_u, t + 1e-12, side='right')) - 1
-        return u[min(max(i, 0), len(t_u) - 1)]
-
     x_init = np.concatenate([q0, qd0, stage2.a[0]])
-    return simulate_musculoskeletal_rk4(model, x_init, x0, excitation, t_end, rate_hz)
+    return simulate_excitations(model, x_init, x0, held(stage2.t, stage2.u), t_end,
+                                method='rk4', rate_hz=rate_hz)
 
 
 def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSettings(),

@@ -24,10 +24,10 @@ import time
 
 import casadi as ca
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from nmt_ros.model import contact as contact_law
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.simulation import Simulation, simulate_excitations
 from nmt_ros.model.squat import StaticSquat, solve_static_squat
 
 NX = 21  # q[6], qd[6], a[9]
@@ -249,49 +249,6 @@ class JumpOptimizer:
 
 
 @dataclass
-class Simulation:
-    """A forward simulation of the musculoskeletal model driven by excitations."""
-
-    t: np.ndarray          # [n] s
-    x: np.ndarray          # [n, 21] (q, qd, a)
-    u: np.ndarray          # [n, 9]
-    x0: np.ndarray         # contact anchors [2]
-    liftoff_s: float       # first time the vertical ground force falls below the threshold
-    success: bool
-    message: str
-
-
-def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
-                         excitation: callable, t_end: float, t_eval: np.ndarray | None = None,
-                         liftoff_force: float = contact_law.LIFTOFF_FORCE_N, rtol: float = 1e-9,
-                         atol: float = 1e-10) -> Simulation:
-    """Integrate Eq. 1 + Eq. 8 with a stiff implicit integrator (Radau, exact Jacobian).
-
-    ``excitation(t) -> u[9]``. Lift-off: the contact module's rule (``liftoff_event``) on the
-    total vertical ground force with threshold ``liftoff_force`` [N].
-    """
-    fode = model.musculoskeletal_ode
-    fjac = model.musculoskeletal_jacobian
-    fs = model.contact_outputs
-
-    def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        return np.asarray(fode(y, excitation(t), x0)).ravel()
-
-    def jac(t: float, y: np.ndarray) -> np.ndarray:
-        return np.asarray(fjac(y, excitation(t), x0))
-
-    liftoff = contact_law.liftoff_event(
-        lambda y: float(np.asarray(fs(y[:6], y[6:12], x0))[1, 0]), liftoff_force)
-    sol = solve_ivp(rhs, (0.0, t_end), x_init, method='Radau', jac=jac, rtol=rtol,
-                    atol=atol, t_eval=t_eval, events=liftoff, dense_output=False)
-    ev = sol.t_events[0]
-    t_lo = float(ev[0]) if len(ev) else float('nan')
-    u = np.array([excitation(t) for t in sol.t])
-    return Simulation(t=sol.t, x=sol.y.T, u=u, x0=np.asarray(x0, dtype=float),
-                      liftoff_s=t_lo, success=bool(sol.success), message=str(sol.message))
-
-
-@dataclass
 class ReferenceJump:
     """The reference ("actual") jump: PO results, the shipped truth, and consistency checks."""
 
@@ -374,32 +331,3 @@ def make_reference(model: JumperModel, settings: POSettings = POSettings(), star
     return ReferenceJump(po=po, starts=results, coarse=best, simulation=sim, checks=checks,
                          cpu_s=cpu, wall_s=wall)
 
-
-def simulate_musculoskeletal_rk4(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
-                                 excitation: callable, t_end: float, rate_hz: float = 1080.0,
-                                 substeps: int = 4,
-                                 liftoff_force: float = contact_law.LIFTOFF_FORCE_N) -> Simulation:
-    """Eq. 1 + Eq. 8 with fixed-step RK4, recorded at ``rate_hz`` (fast; for piecewise inputs).
-
-    The excitation is evaluated at each step's start and held over the step (zero-order hold
-    on the integration grid), which suits the piecewise-constant Stage-2 excitations.
-    """
-    from nmt_ros.model.integrate import rk4_integrate
-
-    fode = model.musculoskeletal_ode
-    h = 1.0 / (rate_hz * substeps)
-    held = {'t': None, 'u': None}
-
-    def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        t_step = np.floor(t / h + 1e-9) * h
-        if held['t'] != t_step:
-            held['t'], held['u'] = t_step, excitation(t_step)
-        return np.asarray(fode(y, held['u'], x0)).ravel()
-
-    n = int(np.floor(t_end * rate_hz + 1e-9)) * substeps
-    t, y, _ = rk4_integrate(rhs, x_init, 0.0, h, n, substeps)
-    s, = model.batch(model.contact_outputs, y[:, :6], y[:, 6:12], x0)
-    u = np.array([excitation(ti) for ti in t])
-    return Simulation(t=t, x=y, u=u, x0=np.asarray(x0, dtype=float),
-                      liftoff_s=contact_law.liftoff_time(t, s[:, 1], liftoff_force), success=True,
-                      message='RK4')

@@ -15,9 +15,8 @@ import time
 
 import numpy as np
 
-from nmt_ros.model.contact import liftoff_time
-from nmt_ros.model.integrate import rk4_integrate
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.simulation import simulate_torques
 from nmt_ros.tracking.conditioning import ConditionedObservations
 from nmt_ros.tracking.skeletal_tracker import SKTState
 
@@ -88,24 +87,17 @@ def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
     end of the torques or when the model falls (a segment angle beyond ``max_angle_deg``).
     """
     t_end = float(result.t[-1]) if t_end is None else t_end
-    dt = 1.0 / (rate_hz * substeps)
-    fd = model.forward_dynamics
-    x0 = initial.x0
 
     def tau_at(t: float) -> np.ndarray:
         return np.array([np.interp(t, result.t, result.tau[:, j]) for j in range(3)])
 
-    def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        return np.concatenate([y[6:], np.asarray(fd(y[:6], y[6:], tau_at(t), x0)).ravel()])
-
     def fell(_t: float, y: np.ndarray) -> bool:
         return not np.isfinite(y).all() or np.degrees(np.abs(y[:4])).max() > max_angle_deg
 
-    ts, Y, stopped = rk4_integrate(rhs, np.concatenate([initial.q, initial.qd]), 0.0, dt,
-                                   int(round(t_end / dt)), substeps, stop=fell)
-    status = 'fell' if stopped else 'completed'
-    s, = model.batch(model.contact_outputs, Y[:, :6], Y[:, 6:], x0)
-    result.sim_t, result.sim_q, result.sim_qd, result.sim_s = ts, Y[:, :6], Y[:, 6:], s
-    result.sim_liftoff_s = liftoff_time(result.sim_t, s[:, 1])
-    result.sim_status = status
+    sim = simulate_torques(model, initial.q, initial.qd, initial.x0, tau_at, t_end,
+                           rate_hz=rate_hz, substeps=substeps, stop=fell)
+    result.sim_t, result.sim_q, result.sim_qd = sim.t, sim.x[:, :6], sim.x[:, 6:]
+    result.sim_s = sim.s
+    result.sim_liftoff_s = sim.liftoff_s
+    result.sim_status = 'completed' if sim.success else 'fell'
     return result

@@ -46,8 +46,8 @@ import functools
 import casadi as ca
 import numpy as np
 
-from nmt_ros.model.integrate import rk4_step
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.simulation import rk4_step
 from nmt_ros.tracking.conditioning import ConditionedObservations
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
