@@ -19,9 +19,9 @@ from nmt_ros.model.jumper import default_model
 from nmt_ros.tracking.conditioning import condition
 from nmt_ros.tracking.optimal_tracker import (
     OptimalTrackingSettings,
-    _build,
     collocation_grid,
     track_optimal,
+    tracking_nlp,
 )
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.streaming import track_stage1
@@ -66,7 +66,7 @@ def optimal(model, obs, duration: float) -> dict:
     for actuation in ('torque', 'muscle'):
         st = OptimalTrackingSettings(actuation=actuation)
         c = time.process_time()
-        solver, _ = _build(model, n, h, idx[keep], st)
+        solver = tracking_nlp(model, n, h, idx[keep], st).solver
         build = time.process_time() - c
         res = track_optimal(model, obs, guess, st)
         stats = solver.stats()

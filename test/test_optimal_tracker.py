@@ -182,11 +182,12 @@ def test_assembled_hessian_equals_the_nlps_own(model, actuation):
     differentiation of the whole NLP, at a random point with random multipliers."""
     import casadi as ca
 
-    from nmt_ros.tracking.optimal_tracker import _build
+    from nmt_ros.tracking.optimal_tracker import tracking_nlp
 
     n = 12
     idx = np.array([0, 4, 8, 12])
-    solver, _ = _build(model, n, 1 / 1080, idx, OptimalTrackingSettings(actuation=actuation))
+    solver = tracking_nlp(model, n, 1 / 1080, idx,
+                          OptimalTrackingSettings(actuation=actuation)).solver
     nlp = solver.oracle()
     x, p = ca.MX.sym('x', nlp.size1_in(0)), ca.MX.sym('p', nlp.size1_in(1))
     lam_f, lam_g = ca.MX.sym('lam_f'), ca.MX.sym('lam_g', nlp.size1_out(1))
@@ -211,11 +212,11 @@ def test_assembled_jacobian_equals_the_nlps_own(model, actuation):
     differentiation of the whole NLP, and so do the constraint values, at a random point."""
     import casadi as ca
 
-    from nmt_ros.tracking.optimal_tracker import _build
+    from nmt_ros.tracking.optimal_tracker import tracking_nlp
 
     n = 12
-    solver, _ = _build(model, n, 1 / 1080, np.array([0, 4, 8, 12]),
-                       OptimalTrackingSettings(actuation=actuation))
+    solver = tracking_nlp(model, n, 1 / 1080, np.array([0, 4, 8, 12]),
+                          OptimalTrackingSettings(actuation=actuation)).solver
     nlp = solver.oracle()
     x, p = ca.MX.sym('x', nlp.size1_in(0)), ca.MX.sym('p', nlp.size1_in(1))
     _, g = nlp(x, p)
