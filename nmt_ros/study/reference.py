@@ -29,9 +29,18 @@ from nmt_ros.model import contact as contact_law
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.simulation import Simulation, simulate_excitations
 from nmt_ros.model.squat import StaticSquat, solve_static_squat
+from nmt_ros.tracking.collocation import (
+    QDD_SCALE,
+    Block,
+    Defect,
+    Interpolated,
+    NodeSum,
+    Path,
+    Transcription,
+    dynamics_residual,
+)
 
 NX = 21  # q[6], qd[6], a[9]
-QDD_SCALE = 100.0  # rad/s^2 or m/s^2 per unit of an acceleration variable
 
 
 @dataclass(frozen=True)
@@ -96,7 +105,12 @@ def excitation_at(excitation_nodes: np.ndarray, tf: float, t: np.ndarray | float
 
 
 class JumpOptimizer:
-    """Builds the NLP once for given settings; ``solve`` runs IPOPT from an initial guess."""
+    """Builds the NLP once for given settings; ``solve`` runs IPOPT from an initial guess.
+
+    The NLP is the collocation transcription (``tracking.collocation``) of: nodes x = [q, qd,
+    a] and scaled accelerations, globals the excitation nodes [9, n_nodes] and t_f; the
+    excitations at the grid nodes interpolated from the excitation nodes.
+    """
 
     def __init__(self, model: JumperModel, settings: POSettings = POSettings()) -> None:
         self.model = model
@@ -104,148 +118,111 @@ class JumpOptimizer:
         self.squat = solve_static_squat(model, settings.squat_joint_deg)
         self._build()
 
-    def _node_function(self) -> ca.Function:
-        """Per-node constraint expressions of the NLP (one definition, mapped over the grid)."""
+    def _node(self, v: dict[str, ca.SX]) -> dict[str, ca.SX]:
+        """What the NLP needs at one node (one definition, mapped over the grid)."""
         m = self.model
         p = m.p
-        x = ca.SX.sym('x', NX)
-        qdd = ca.SX.sym('qdd', 6)
-        u = ca.SX.sym('u', 9)
         x0 = ca.DM(self.squat.x0)
+        x, qdd, u = v['x'], v['qdd'], v['u']
         q, qd, a = x[:6], x[6:12], x[12:]
         tau_m = m.muscle_torques(q, qd, a)[0]
-        residual = m.dynamics_residual(q, qd, qdd, tau_m, x0)
-        scale = ca.DM([1 / 100.0] * 4 + [1 / p.body_weight] * 2)
-        adot = m.activation_dynamics(u, a)
         pts = m.positions(q)[4]                     # [2 x 2]: heel, toe
         vel_pts = ca.jacobian(ca.vec(pts), q) @ qd  # [heel x, heel y, toe x, toe y]
         theta_dot = m.joint_angles(qd)
         com = m.com(q)
         vcom = m.com_velocity(q, qd)
         c = p.contact
-        elastic = sum(c.k_y * c.delta * contact_law.softplus(-pts[1, i] / c.delta)
-                      for i in range(2))
-        out = [scale * residual, adot, pts[1, 1], vel_pts[1], theta_dot[1], theta_dot[2],
-               vcom[1], com[1], elastic]
-        return ca.Function('po_node', [x, qdd, u], [ca.vertcat(*out)])
+        return {
+            'residual': dynamics_residual(m, q, qd, qdd, tau_m, x0),          # Eq. 1
+            'xdot': ca.vertcat(qd, qdd, m.activation_dynamics(u, a)),         # Eq. 8
+            'toe_y': pts[1, 1], 'heel_vy': vel_pts[1],
+            'knee_rate': theta_dot[1], 'hip_rate': theta_dot[2], 'com_vy': vcom[1],
+            'elastic': sum(c.k_y * c.delta * contact_law.softplus(-pts[1, i] / c.delta)
+                           for i in range(2)),
+            'apex': com[1] + vcom[1] ** 2 / (2 * p.gravity),   # ballistic apex of the COM
+        }
 
     def _build(self) -> None:
         s = self.settings
         n = s.n_intervals
-        g = self.model.p.gravity
-        node = self._node_function()
-        xs = ca.MX.sym('X', NX, n + 1)
-        qdd_vars = ca.MX.sym('QDD', 6, n + 1)   # accelerations in units of QDD_SCALE
-        qdds = QDD_SCALE * qdd_vars
-        unodes = ca.MX.sym('U', 9, s.n_nodes)
-        tf = ca.MX.sym('tf')
-        w_interp = ca.DM(interpolation_matrix(s.n_nodes, np.linspace(0.0, 1.0, n + 1)))
-        us = unodes @ w_interp
-        out = node.map(n + 1, 'serial')(xs, qdds, us)
-        res_dyn, adot = out[0:6, :], out[6:15, :]
-        toe_y, heel_vy, knee_dot, hip_dot, vy_com, y_com, elastic = (out[15 + i, :]
-                                                                     for i in range(7))
-        xdot = ca.vertcat(xs[6:12, :], qdds, adot)
-        h = tf / n
-        colloc = xs[:, 1:] - xs[:, :-1] - 0.5 * h * (xdot[:, 1:] + xdot[:, :-1])
-
-        g_list, lbg, ubg = [], [], []
-
-        def add(expr: ca.MX, lo: float, hi: float) -> None:
-            expr = ca.vec(expr)
-            g_list.append(expr)
-            lbg.append(np.full(expr.shape[0], lo))
-            ubg.append(np.full(expr.shape[0], hi))
-
-        add(colloc, 0.0, 0.0)
-        add(res_dyn, 0.0, 0.0)
+        after_start = range(1, n + 1)
         # Path constraints from node 1 on: at node 0 the state is fixed, and a constraint with
         # no free variable breaks IPOPT's constraint qualification.
         # The toe stays down until the last ~4 % of the push: lift-off needs a few intervals
         # (a one-interval lift-off forces an arbitrary, mesh-dependent snap of the foot).
         n_free = max(1, round(n * s.liftoff_fraction))
-        add(toe_y[:, 1:n + 1 - n_free], -np.inf, s.toe_clearance)
-        add(heel_vy[:, 1:], s.heel_min_vy, np.inf)
-        add(knee_dot[:, 1:], 0.0, np.inf)  # knee_angle (-flexion) only increases: extension
-        add(hip_dot[:, 1:], -np.inf, 0.0)  # hip_flexion only decreases: extension
-        add(vy_com[:, 1:], 0.0, np.inf)
-        add(elastic[:, -1], -np.inf, s.end_force_max)
-
-        apex = y_com[:, -1] + vy_com[:, -1] ** 2 / (2 * g)
-        z = ca.vertcat(ca.vec(xs), ca.vec(qdd_vars), ca.vec(unodes), tf)
-        self._shapes = (n, s.n_nodes)
-        self._apex_fn = ca.Function('apex', [z], [apex])
-        cost = (-apex + s.tf_weight * tf
-                + s.effort_weight * ca.sumsqr(unodes) / unodes.numel())
-        nlp = {'x': z, 'f': cost, 'g': ca.vertcat(*g_list)}
-        opts = {'expand': True, 'print_time': False,
-                'ipopt': {'tol': s.tol, 'max_iter': s.max_iter, 'print_level': s.print_level,
-                          'mu_strategy': 'adaptive', 'linear_solver': 'mumps'}}
-        self.solver = ca.nlpsol('jump_po', 'ipopt', nlp, opts)
-        self._lbg = np.concatenate(lbg)
-        self._ubg = np.concatenate(ubg)
-        # Bounds on the variables.
-        x_init = np.concatenate([self.squat.q, np.zeros(6), self.squat.a])
-        lbx_x = np.tile(np.r_[np.full(6, -np.inf), np.full(6, -np.inf), np.zeros(9)], n + 1)
-        ubx_x = np.tile(np.r_[np.full(6, np.inf), np.full(6, np.inf), np.ones(9)], n + 1)
-        lbx_x[:NX] = x_init
-        ubx_x[:NX] = x_init
-        n_qdd = 6 * (n + 1)
-        n_u = 9 * s.n_nodes
-        self._lbx = np.concatenate([lbx_x, np.full(n_qdd, -np.inf), np.zeros(n_u),
-                                    [s.tf_bounds[0]]])
-        self._ubx = np.concatenate([ubx_x, np.full(n_qdd, np.inf), np.ones(n_u),
-                                    [s.tf_bounds[1]]])
-        self._x_init = x_init
+        last = np.zeros(n + 1)
+        last[n] = -1.0                                 # maximise the apex at t_f
+        self.transcription = tr = Transcription(
+            n, 'tf', [Block('x', NX), Block('qdd', 6, scale=QDD_SCALE)], self._node,
+            [Defect('x', 'xdot'), Path('residual'),
+             Path('toe_y', range(1, n + 1 - n_free), -np.inf, s.toe_clearance),
+             Path('heel_vy', after_start, s.heel_min_vy, np.inf),
+             Path('knee_rate', after_start, 0.0, np.inf),   # knee_angle (-flexion) increases
+             Path('hip_rate', after_start, -np.inf, 0.0),   # hip_flexion decreases: extension
+             Path('com_vy', after_start, 0.0, np.inf),
+             Path('elastic', [n], -np.inf, s.end_force_max)],
+            costs=[NodeSum('apex', last)],
+            global_blocks=[Block('u_nodes', 9, s.n_nodes), Block('tf', 1)],
+            interpolated=[Interpolated('u', 'u_nodes', interpolation_matrix(
+                s.n_nodes, np.linspace(0.0, 1.0, n + 1)))],
+            quadratic_cost=lambda var, _par: (
+                s.tf_weight * var['tf'] + s.effort_weight * ca.sumsqr(var['u_nodes'])
+                / var['u_nodes'].numel()))
+        self._apex_fn = ca.Function('apex', [tr.z], [tr.values['apex'][:, -1]])
+        self.solver = tr.solver('jump_po', {
+            'expand': True, 'print_time': False,
+            'ipopt': {'tol': s.tol, 'max_iter': s.max_iter, 'print_level': s.print_level,
+                      'mu_strategy': 'adaptive', 'linear_solver': 'mumps'}})
+        self._x_init = np.concatenate([self.squat.q, np.zeros(6), self.squat.a])
+        a_lo, a_hi = np.r_[np.full(12, -np.inf), np.zeros(9)], np.r_[np.full(12, np.inf),
+                                                                     np.ones(9)]
+        self._lbx, self._ubx = tr.bounds(
+            {'x': a_lo, 'u_nodes': 0.0, 'tf': s.tf_bounds[0]},
+            {'x': a_hi, 'u_nodes': 1.0, 'tf': s.tf_bounds[1]})
+        start = tr.index('x')[0]                       # the squat at t = 0
+        self._lbx[start] = self._ubx[start] = self._x_init
 
     def held_squat_guess(self, tf: float = 0.3) -> np.ndarray:
         """Initial guess: the squat held still, excitations that hold it (PO_NOTES.md)."""
-        n, k = self._shapes
-        xs = np.tile(self._x_init, n + 1)
-        us = np.tile(self.squat.u[:, None], (1, k)).T.ravel()
-        return np.concatenate([xs, np.zeros(6 * (n + 1)), us, [tf]])
+        return self.transcription.pack({
+            'x': self._x_init, 'qdd': 0.0,
+            'u_nodes': np.tile(self.squat.u[:, None], (1, self.settings.n_nodes)), 'tf': tf})
 
     def perturbed_guess(self, rng: np.random.Generator) -> np.ndarray:
         """A multi-start guess: held squat with random excitation nodes and final time."""
         z = self.held_squat_guess(tf=float(rng.uniform(*self.settings.tf_bounds)))
-        n, k = self._shapes
-        start = NX * (n + 1) + 6 * (n + 1)
-        z[start:start + 9 * k] = rng.uniform(0.0, 1.0, 9 * k)
+        idx = self.transcription.index('u_nodes')
+        z[idx.ravel(order='F')] = rng.uniform(0.0, 1.0, idx.size)
         return z
 
     def guess_from(self, result: POResult) -> np.ndarray:
         """Initial guess interpolated from another solution (mesh refinement/continuation)."""
-        n, k = self._shapes
-        tau_new = np.linspace(0.0, 1.0, n + 1)
+        tr = self.transcription
+        tau_new = np.linspace(0.0, 1.0, tr.nodes)
         tau_old = result.t / result.tf
         xs = np.column_stack([np.interp(tau_new, tau_old, result.x[:, i]) for i in range(NX)])
         qdd = np.column_stack([np.interp(tau_new, tau_old, result.qdd[:, i])
                                for i in range(6)])
         nodes_old = np.linspace(0.0, 1.0, result.excitation_nodes.shape[1])
-        nodes_new = np.linspace(0.0, 1.0, k)
+        nodes_new = np.linspace(0.0, 1.0, self.settings.n_nodes)
         u = np.stack([np.interp(nodes_new, nodes_old, row) for row in result.excitation_nodes])
-        return np.concatenate([xs.ravel(), qdd.ravel() / QDD_SCALE, u.T.ravel(), [result.tf]])
+        return tr.pack({'x': xs, 'qdd': qdd, 'u_nodes': u, 'tf': result.tf})
 
     def solve(self, z0: np.ndarray | None = None) -> POResult:
         z0 = self.held_squat_guess() if z0 is None else z0
+        tr = self.transcription
         c0, w0 = time.process_time(), time.perf_counter()
-        sol = self.solver(x0=z0, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
+        sol = tr.solve(self.solver, z0, lbx=self._lbx, ubx=self._ubx)
         cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        stats = self.solver.stats()
-        z = np.asarray(sol['x']).ravel()
-        n, k = self._shapes
-        xs = z[:NX * (n + 1)].reshape(n + 1, NX)
-        off = NX * (n + 1)
-        qdd = z[off:off + 6 * (n + 1)].reshape(n + 1, 6) * QDD_SCALE
-        off += 6 * (n + 1)
-        unodes = z[off:off + 9 * k].reshape(k, 9).T
-        tf = float(z[-1])
+        v = tr.unpack(sol.z)
+        tf = float(v['tf'][0, 0])
         return POResult(
-            settings=self.settings, success=bool(stats['success']),
-            status=str(stats['return_status']), iterations=int(stats['iter_count']),
-            cpu_s=cpu, wall_s=wall, tf=tf, excitation_nodes=unodes,
-            t=np.linspace(0.0, tf, n + 1), x=xs, qdd=qdd,
-            apex_m=float(self._apex_fn(z)), objective=float(sol['f']), squat=self.squat)
+            settings=self.settings, success=sol.success, status=sol.status,
+            iterations=sol.iterations, cpu_s=cpu, wall_s=wall, tf=tf,
+            excitation_nodes=v['u_nodes'], t=np.linspace(0.0, tf, tr.nodes), x=v['x'],
+            qdd=v['qdd'], apex_m=float(self._apex_fn(sol.z)), objective=sol.f,
+            squat=self.squat)
 
 
 @dataclass

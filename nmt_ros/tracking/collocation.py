@@ -110,12 +110,12 @@ class Path:
 @dataclass(frozen=True)
 class Fixed:
     """The variables of node block ``block`` at node ``node`` within [lower, upper] (in
-    variable units)."""
+    variable units; a value or one per row)."""
 
     block: str
     node: int = 0
-    lower: float = 0.0
-    upper: float = 0.0
+    lower: float | tuple[float, ...] = 0.0
+    upper: float | tuple[float, ...] = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -467,8 +467,8 @@ class Transcription:
             else:
                 raise TypeError(f'not a constraint: {c!r}')
             g.append(expr)
-            lbg.append(np.full(expr.numel(), lo, dtype=float))
-            ubg.append(np.full(expr.numel(), hi, dtype=float))
+            lbg.append(np.broadcast_to(np.asarray(lo, dtype=float), (expr.numel(),)))
+            ubg.append(np.broadcast_to(np.asarray(hi, dtype=float), (expr.numel(),)))
         return ca.vertcat(*g), np.concatenate(lbg), np.concatenate(ubg)
 
     def _cost(self, values: dict[str, ca.MX], quadratic: ca.MX | None) -> ca.MX:
