@@ -14,6 +14,7 @@ import pytest
 
 from nmt_ros.study.reference import JumpOptimizer, POSettings
 from nmt_ros.tracking.collocation import (
+    WARM_START_IPOPT,
     Block,
     Defect,
     Fixed,
@@ -185,8 +186,7 @@ def test_shift_moves_nodes_and_multipliers_for_a_receding_window():
         [Defect('x', 'xdot'), Fixed('x', 0, tuple(truth[k]), tuple(truth[k]))],
         costs=[LeastSquares(lambda v: v['x'][0, :] - v['data'])],
         node_parameters=[Block('data', 1)])
-    warm = later.solver('later', {**opts, 'ipopt': {**opts['ipopt'],
-                                                     'warm_start_init_point': 'yes'}})
+    warm = later.solver('later', {**opts, 'ipopt': {**opts['ipopt'], **WARM_START_IPOPT}})
     second = later.solve(warm, z0, later.pack_parameters({'data': truth[k:, :1]}),
                          lam_g0=lam_g0, lam_x0=lam_x0)
     assert second.success

@@ -19,8 +19,9 @@ the final time t_f a decision variable) as:
 * constraints, in the order given: ``Defect`` (the trapezoidal rule of a node block with its
   rate: another node block, linear, or a node output), ``Path`` (a node output at some nodes,
   bounded), ``Fixed`` (a block's variables at one node);
-* cost: ``LeastSquares`` and ``NodeSum`` of node outputs, plus a quadratic term (constant
-  Hessian: smoothness, effort, angle fit, an arrival cost).
+* cost: ``LeastSquares`` (of a residual written column by column from the node quantities)
+  and ``NodeSum`` (of a scalar node output), plus a quadratic term (constant Hessian:
+  smoothness, effort, angle fit, an arrival cost).
 
 Derivatives are assembled, not differentiated whole: every nonlinear term involves one node's
 inputs, so one node's Lagrangian Hessian and constraint Jacobian are built once (SX, common
@@ -29,7 +30,9 @@ matrices. Where each node input sits in z and where each node output enters g ar
 from the layout (``Transcription._input_map``, ``_output_rows``); the quadratic cost adds a
 constant Hessian and the linear constraints a constant Jacobian. The values equal CasADi's
 derivatives of the whole NLP (tested) without building them: the muscle-driven tracking NLP
-of the reference jump builds in 0.2 s instead of 10 s, 0.2 GB instead of 1.1.
+of the reference jump builds in under 1 s of CPU (differentiating the whole NLP: 10-17 s and
+1.1 GB), the PO's of N = 100 in 3-5 s (15 s when CasADi differentiated the expanded NLP);
+bench/bench_collocation.py.
 
 Solvers are expensive to build and cheap to reuse: ``solvers`` (a ``SolverCache``) keeps the
 most recently used few, keyed by the model (weakly: never confused with another model) and the
@@ -51,10 +54,21 @@ from nmt_ros.model.jumper import JumperModel
 QDD_SCALE = 100.0   # rad/s^2 or m/s^2 per unit of an acceleration variable
 TAU_SCALE = 100.0   # N m per unit of a torque variable
 RESIDUAL_MOMENT_SCALE = 100.0   # N m per unit of a rotational row of Eq. 1 (forces: per BW)
-#: Solvers kept by ``solvers``. One muscle-driven tracking solver of the reference jump
-#: (279 nodes) holds about 0.1 GB (bench/bench_collocation.py), so the cache stays under
-#: about half a gigabyte; a fifth distinct shape evicts the least recently used.
+#: Solvers kept by ``solvers``: a fifth distinct problem shape evicts the least recently
+#: used. A muscle-driven tracking solver of 200-270 nodes holds about 10 MB once built
+#: (bench/bench_collocation.py), so the cache holds about 40 MB at most; building one costs
+#: 0.5-1 s of CPU, solving it 5-10 s, so four shapes cover a study's trials or an estimator's
+#: window lengths without rebuilding.
 SOLVER_CACHE_SIZE = 4
+
+#: IPOPT options of a warm-started solve (``Transcription.solve`` with the multipliers of a
+#: previous solution, e.g. shifted by ``Transcription.shift``): start from the given point and
+#: multipliers, barely pushed off the bounds, with a small barrier. On the muscle-driven
+#: tracking NLP of the jump with its last 5 force samples changed: 31 iterations against 45
+#: from the tracker's guess (1e-6: 28, but 167 against 38 when all the data change; the
+#: primal point alone: 108); bench/bench_collocation.py.
+WARM_START_IPOPT = {'warm_start_init_point': 'yes', 'warm_start_bound_push': 1e-9,
+                    'warm_start_mult_bound_push': 1e-9, 'mu_init': 1e-4}
 
 
 def dynamics_residual(model: JumperModel, q: ca.SX, qd: ca.SX, qdd: ca.SX, tau: ca.SX,
@@ -267,11 +281,18 @@ class Transcription:
     def pack(self, values: dict[str, np.ndarray], fill: float = 0.0) -> np.ndarray:
         """z from physical values: node blocks [N + 1, rows] (or [rows], every node), global
         blocks [rows, cols]; missing blocks are ``fill``."""
+        unknown = sorted(set(values) - {b.name for b in self.node_blocks + self.global_blocks})
+        if unknown:
+            raise ValueError(f'no such variable blocks: {unknown}')
         z = np.full(self.z_size, float(fill))
         for b in self.node_blocks + self.global_blocks:
             if b.name in values:
                 v = np.asarray(values[b.name], dtype=float)
                 idx = self.index(b.name)
+                if v.ndim > idx.ndim or any(d not in (1, e) for d, e in
+                                            zip(v.shape[::-1], idx.shape[::-1])):
+                    raise ValueError(f'block {b.name!r} is {list(idx.shape)}, not '
+                                     f'{list(v.shape)}')
                 z[idx] = np.broadcast_to(v, idx.shape) / b.scale
         return z
 
@@ -283,16 +304,19 @@ class Transcription:
 
     def pack_parameters(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """p from every parameter block: node blocks [N + 1, rows], global [rows, cols]."""
+        names = {b.name for b in self.node_parameters + self.global_parameters}
+        if set(values) != names:
+            raise ValueError(f'parameters needed: {sorted(names)}, given: {sorted(values)}')
         p = np.zeros(self.p_size)
-        for b in self.node_parameters:
+        for b in self.node_parameters + self.global_parameters:
             v = np.asarray(values[b.name], dtype=float)
-            if v.shape != (self.nodes, b.rows):
-                raise ValueError(f'parameter {b.name!r} must be [{self.nodes}, {b.rows}], '
-                                 f'not {v.shape}')
-            p[self.p_offsets[b.name] + np.arange(v.size)] = v.ravel()
-        for b in self.global_parameters:
-            v = np.asarray(values[b.name], dtype=float).reshape(b.rows, b.cols)
-            p[self.p_offsets[b.name] + np.arange(v.size)] = v.ravel(order='F')
+            node = b in self.node_parameters
+            shape = (self.nodes, b.rows) if node else (b.rows, b.cols)
+            if v.shape != shape and not (not node and v.size == b.rows * b.cols == v.shape[0]):
+                raise ValueError(f'parameter {b.name!r} must be {list(shape)}, not '
+                                 f'{list(v.shape)}')
+            p[self.p_offsets[b.name] + np.arange(v.size)] = (
+                v.ravel() if node else v.reshape(shape).ravel(order='F'))
         return p
 
     def bounds(self, lower: dict[str, float | np.ndarray] | None = None,
