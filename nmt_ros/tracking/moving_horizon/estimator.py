@@ -417,7 +417,7 @@ def initial_control_points(model: JumperModel, grid: KnotGrid, first: int, n_seg
         qd0[0] = 0.0
         q0[5] = ankle_height_for_force(model, q0, s0[1])
     else:        # airborne: 5 cm above the ground
-        q0[5] = model_ankle_height(model) + 0.05
+        q0[5] = model.ankle_height + 0.05
     x0 = model.anchors_at(q0)
     if loaded:   # the horizontal springs carry the observed fore-aft force
         x0 = x0 + s0[0] / (x0.size * model.p.contact.k_x)
@@ -437,11 +437,6 @@ def initial_control_points(model: JumperModel, grid: KnotGrid, first: int, n_seg
     return C, plate
 
 
-def model_ankle_height(model: JumperModel) -> float:
-    """Ankle height [m] with the foot upright and its lowest contact point on the ground."""
-    return -float(model.p.contact.points[:, 1].min())
-
-
 def flat_foot_angle(model: JumperModel) -> float:
     """Foot angle [rad] at which its heel and toe points are at the same height."""
     (hx, hy), (tx, ty) = model.p.contact.points
@@ -451,7 +446,7 @@ def flat_foot_angle(model: JumperModel) -> float:
 def ankle_height_for_force(model: JumperModel, q: np.ndarray, fy: float) -> float:
     """Ankle height r2 [m] at which the springs at rest (anchors under the points) carry
     the vertical force fy [N] in posture q (bisection; the force falls with height)."""
-    lo, hi = model_ankle_height(model) - 0.03, model_ankle_height(model) + 0.05
+    lo, hi = model.ankle_height - 0.03, model.ankle_height + 0.05
     qq = np.asarray(q, dtype=float).copy()
     for _ in range(50):
         qq[5] = 0.5 * (lo + hi)
