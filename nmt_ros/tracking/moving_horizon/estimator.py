@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from nmt_ros.model.compiled import compiled
+from nmt_ros.model.contact import liftoff_time
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.squat import rest_activations
 from nmt_ros.records import SKTResult
@@ -41,6 +42,7 @@ from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKe
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.moving_horizon.spline import KnotGrid
 from nmt_ros.tracking.moving_horizon.window import SlidingWindow
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
 
 @dataclass
@@ -495,9 +497,8 @@ def _stage1_record(model: JumperModel, blocks: list[EstimateBlock], events: list
                     s=cat['s'], bias=moment_bias, residual=np.zeros((cat['t'].size, 7)),
                     x0=model.anchors_at(cat['q'][0]), status='ok', events=events,
                     cpu_s=cpu_s, muscles={'a': cat['a'], 'u': cat['u'], 'f': cat['f']})
-    from nmt_ros.tracking.skeletal_tracker import liftoff_time
-
-    res.liftoff_s = liftoff_time(res.t, res.s[:, 1], 0.02 * model.p.body_weight)
+    res.liftoff_s = liftoff_time(res.t, res.s[:, 1],
+                                 OBSERVATION_NOISE.force_sd_bw * model.p.body_weight)
     return res
 
 
