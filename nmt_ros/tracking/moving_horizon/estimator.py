@@ -98,7 +98,8 @@ class MovingHorizonEstimator:
             wrench_sd=tuple(st.wrench_sd(bw)), huber_k=st.huber_k,
             sd_dyn=tuple(np.maximum(st.dynamics_sd * mass_diag, st.dynamics_sd_floor)),
             sd_height=st.contact_height_sd_m, sd_slip=st.contact_slip_sd_m_s,
-            full_load=st.contact_full_load_bw * bw, stiffness=float(model.p.contact.k_y),
+            full_load=st.contact_full_load_bw * bw, free_load=st.contact_free_load_bw * bw,
+            stiffness=float(model.p.contact.k_y),
             w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
             tau_act=m.tau_act, tau_deact=m.tau_deact,
             wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free,
@@ -220,18 +221,19 @@ class MovingHorizonEstimator:
         w = self.window
         w.extend(self.grid.segment_of(t_u))
         w.add_samples(angles, wrench)
+        why = None
         try:
             self.damping = w.solve(self._to_relinearise(), st.iterations, self.damping,
                                    check=st.check_steps)
-            ok = bool(np.isfinite(w.C).all() and np.isfinite(w.plate).all())
-        except np.linalg.LinAlgError:
-            ok = False
-        if ok:
-            ok = self._healthy(t_u)
-        if not ok:
-            self.events.append(EstimatorEvent('error', t_u, 'loss of control: the window no '
-                                              'longer explains the data; re-initialising '
-                                              'from the newest observations'))
+            if not (np.isfinite(w.C).all() and np.isfinite(w.plate).all()):
+                why = 'non-finite estimate'
+        except np.linalg.LinAlgError as exc:
+            why = f'singular step ({exc})'
+        if why is None and not self._healthy(t_u):
+            why = 'the newest observations are no longer explained'
+        if why is not None:
+            self.events.append(EstimatorEvent('error', t_u, f'loss of control: {why}; '
+                                              're-initialising from the newest observations'))
             self.window = None
             self.restarts += 1
             if not self._start(t_u):
@@ -272,9 +274,13 @@ class MovingHorizonEstimator:
         return True
 
     def _slide(self, t_u: float) -> None:
-        keep_from = self.grid.segment_of(t_u - self.settings.window_s)
-        if keep_from > self.window.first:
-            self.window.drop_before(keep_from)
+        st, w = self.settings, self.window
+        keep_from = self.grid.segment_of(t_u - st.window_s)
+        if keep_from > w.first:
+            t_old = w.grid.time(np.arange(w.first, keep_from) + 0.5)
+            fy = w.values(t_old, 1)[:, 0, LAYOUT['s']][:, 1]
+            airborne = bool((fy < st.contact_free_load_bw * self.model.p.body_weight).all())
+            w.drop_before(keep_from, airborne=airborne)
 
     # ------------------------------------------------------------------ outputs
     def _emit(self, t_u: float, final: bool = False) -> list[EstimateBlock]:
@@ -357,8 +363,11 @@ class MovingHorizonEstimator:
             damping = w.solve(segments, per_stage, damping,
                               dynamics_scale=sd / st.dynamics_sd)
         w.lin_seg[:] = -1
-        self.damping = w.solve(segments, st.start_iterations
-                               - per_stage * len(st.start_dynamics_sd), damping)
+        w.solve(segments, st.start_iterations - per_stage * len(st.start_dynamics_sd), damping)
+        # tracking starts undamped: the start's damping reflects its far-from-quadratic
+        # first iterations, and carried over it would keep the first updates from following
+        # the new data
+        self.damping = st.damping
         self.window = w
         self.state = 'tracking'
         self.unhealthy_since = None

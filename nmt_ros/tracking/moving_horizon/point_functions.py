@@ -138,7 +138,7 @@ def excitation(a: np.ndarray, ad: np.ndarray, add: np.ndarray, tau_act: float,
     tau_deact, and its rate udot, with derivatives (a in [0, 1] keeps the denominator >=
     beta > 0)."""
     beta = tau_act / tau_deact
-    inv = 1.0 / (1.0 - (1.0 - beta) * a)
+    inv = 1.0 / np.maximum(1.0 - (1.0 - beta) * a, beta)   # a <= 1 exact; beyond, finite
     u = (tau_act * ad + beta * a) * inv
     du_da = (beta + (1.0 - beta) * u) * inv
     du_dad = tau_act * inv

@@ -42,7 +42,8 @@ class KernelSpec:
     sd_dyn: tuple                 # [6] per row of Eq. 1
     sd_height: float
     sd_slip: float
-    full_load: float
+    full_load: float              # N: above this vertical force the points are held...
+    free_load: float              # N: ...below this they are free (airborne)
     stiffness: float
     w_u: float
     w_du: float
@@ -144,7 +145,8 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
             share = hold(share, 'share')
         shares_now = ca.vertcat(1 - toe, toe)
         held_by = (ca.fmin(shares_now / s.full_share, 1.0)
-                   * ca.fmin(ca.fmax(fy, 0.0) / s.full_load, 1.0))
+                   * ca.fmin(ca.fmax((fy - s.free_load) / (s.full_load - s.free_load), 0.0),
+                             1.0))
         weight = hold(ca.sqrt(held_by), 'weight')
         load = share * fy
         heights = ca.vertcat(pos[1], pos[3])
@@ -152,7 +154,7 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         rows.append(colloc * weight * (heights + load / s.stiffness) / (s.sd_height * scale))
         rows.append(colloc * weight * slips / (s.sd_slip * scale))
         # excitations (Eq. 8a inverted): effort, smoothness, bounds on u and a
-        den = 1 - (1 - beta) * a
+        den = ca.fmax(1 - (1 - beta) * a, beta)   # a <= 1 exact; beyond, kept finite
         u = (s.tau_act * ad + beta * a) / den
         udot = (s.tau_act * add + beta * ad + (1 - beta) * u * ad) / den
         over_u = u - ca.fmin(ca.fmax(u, 0.0), 1.0)

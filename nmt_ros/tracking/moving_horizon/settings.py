@@ -46,7 +46,8 @@ class MovingHorizonSettings:
     # centre of pressure) stays at the springs' sinkage (load / stiffness) and does not slide
     contact_height_sd_m: float = 0.002
     contact_slip_sd_m_s: float = 0.02
-    contact_full_load_bw: float = 0.05  # points are held once the vertical force is this [BW]
+    contact_full_load_bw: float = 0.15  # points are held once the vertical force is this [BW]
+    contact_free_load_bw: float = 0.05  # and free below this (airborne; above the noise)
     contact_full_share: float = 0.2    # ... in proportion to their share of it up to this
     share_free: bool = False           # differentiate the load shares (else held, IRLS)
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
@@ -72,8 +73,11 @@ class MovingHorizonSettings:
     relinearise_s: float = 0.03        # the newest data span re-linearised at every update
     relinearise_older: int = 2         # older segments re-linearised per update, in turn
     damping: float = 1e-3              # Levenberg-Marquardt, relative to diag(H)
-    start_window_s: float = 0.025      # data in the first (cold) window: short, so that the
-                                       # state at its start with its rates fits it
+    start_window_s: float = 0.1        # data in the first (cold) window: long enough to
+                                       # tell the rates (a 25 ms start, three mocap samples,
+                                       # leaves the shank's rate uncertain by ~250 deg/s, and
+                                       # a wrong rate is corrected only as fast as the
+                                       # muscles' activation dynamics allow)
     start_iterations: int = 40
     start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
     # --- health (loss of control)

@@ -64,21 +64,3 @@ def evaluate(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, orders: i
     if idx.min() < 0 or idx.max() >= C.shape[0]:
         raise IndexError('instants outside the control points given')
     return np.einsum('pok,pkv->pov', B, C[idx])
-
-
-def fit(t: np.ndarray, y: np.ndarray, first: int, n: int, grid: KnotGrid,
-        smoothing: float = 1e-6) -> np.ndarray:
-    """Least-squares control points [n, k] (global indices first..first+n-1) through samples
-    y [P, k] at t [P], with a small second-difference penalty so that control points no
-    sample reaches stay determined."""
-    j, u = grid.locate(t)
-    B = basis(u, grid.dt)[:, 0]
-    A = np.zeros((np.size(t), n))
-    rows = np.arange(np.size(t))
-    for k in range(4):
-        A[rows, j - first + k] = B[:, k]
-    D = np.diff(np.eye(n), 2, axis=0) * np.sqrt(smoothing * max(np.size(t), 1))
-    lhs = np.vstack([A, D])
-    rhs = np.vstack([np.asarray(y, dtype=float).reshape(np.size(t), -1),
-                     np.zeros((D.shape[0], np.asarray(y).reshape(np.size(t), -1).shape[1]))])
-    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]

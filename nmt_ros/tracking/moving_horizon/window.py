@@ -25,6 +25,7 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
     Prior,
     band_form,
     diffuse,
+    diffuse_along,
     marginalize,
 )
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NB, NV, NX
@@ -133,7 +134,8 @@ class SlidingWindow:
 
     def extend(self, last_segment: int) -> None:
         """Append segments up to ``last_segment`` (global): new control points continue q at
-        its last rate and hold a and s."""
+        its last acceleration (a jump to zero acceleration would be a large Eq. 1 residual in
+        the new segments) and hold a and s."""
         add = last_segment - self.last
         if add <= 0:
             return
@@ -151,7 +153,7 @@ class SlidingWindow:
         q = LAYOUT['q']
         for _ in range(add):
             new = C[-1].copy()
-            new[q] = 2 * C[-1][q] - C[-2][q]
+            new[q] = 3 * C[-1][q] - 3 * C[-2][q] + C[-3][q]
             C.append(new)
         self.C = np.array(C)
 
@@ -322,7 +324,11 @@ class SlidingWindow:
         """Levenberg-Marquardt iterations (damping halved after a step that lowers the
         cost, x4 after one that does not); returns the final damping."""
         for _ in range(iterations):
-            before, after = self.step(segments, damping, dynamics_scale, check)
+            try:
+                before, after = self.step(segments, damping, dynamics_scale, check)
+            except np.linalg.LinAlgError:       # not positive definite: damp more, retry
+                damping = min(damping * 100.0, 1e6)
+                before, after = self.step(segments, damping, dynamics_scale, check)
             if after < before:
                 damping = max(damping / 2.0, min_damping)
                 if before - after < tol * before:
@@ -340,9 +346,13 @@ class SlidingWindow:
         lin = np.concatenate([self.C[:3].ravel(), np.zeros(NX)])
         self.prior = Prior(first=self.first, n_ctrl=3, H=H, g=np.zeros(n), lin=lin)
 
-    def drop_before(self, segment: int) -> None:
+    def drop_before(self, segment: int, airborne: bool = False,
+                    translation_sd: float = 0.05) -> None:
         """Marginalise the segments before ``segment`` (global) into the arrival cost; the
-        plate parameters then get the drift of the time that passed."""
+        plate parameters then get the drift of the time that passed. ``airborne``: nothing
+        held the body to the ground over them, so where it is (a common horizontal and
+        vertical shift of the arrival control points) is free again by ``translation_sd``
+        [m]: the next landing places it."""
         m = segment - self.first
         if m <= 0:
             return
@@ -373,6 +383,11 @@ class SlidingWindow:
         if self.arrival_noise is not None:   # the arrival state's own process noise
             Hp, gp = diffuse(Hp, gp, np.arange(3 * NV), np.tile(self.arrival_noise, 3)
                              * m * self.grid.dt)
+        if airborne:
+            E = np.zeros((Hp.shape[0], 2))
+            for k in range(3):
+                E[k * NV + 4, 0] = E[k * NV + 5, 1] = 1.0
+            Hp, gp = diffuse_along(Hp, gp, E, np.full(2, translation_sd ** 2))
         lin = np.concatenate([self.C[m:m + 3].ravel(), self.plate])
         self.prior = Prior(first=segment, n_ctrl=3, H=Hp, g=gp, lin=lin)
         self.lin_seg[segs[:m] - self.base] = -1

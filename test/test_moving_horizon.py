@@ -1,0 +1,249 @@
+"""The moving-horizon estimator: its parts against closed forms and an independent
+implementation, and the whole against synthetic ground truth (quiet stance held exactly by
+the model's muscles, with the paper's noise), faults and reordering of the input stream."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from moving_horizon_oracle import CollocationWeights, angle_group, collocation_groups
+from moving_horizon_oracle import segment_blocks, wrench_group
+from nmt_ros.records import Observations
+from nmt_ros.tracking.moving_horizon import spline
+from nmt_ros.tracking.moving_horizon.estimator import MovingHorizonEstimator, estimate
+from nmt_ros.tracking.moving_horizon.normal_equations import (
+    RELATIVE_DAMPING,
+    NormalEquations,
+    diffuse,
+    diffuse_along,
+    marginalize,
+)
+from nmt_ros.tracking.moving_horizon.point_functions import PointMap, collocation_function
+from nmt_ros.tracking.moving_horizon.residuals import NB, NV, NX
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+
+RNG = np.random.default_rng(7)
+
+
+# ----------------------------------------------------------------------------- spline
+def test_basis_is_a_partition_of_unity_with_consistent_derivatives():
+    u = np.linspace(0.0, 0.999, 50)
+    dt = 1 / 240
+    B = spline.basis(u, dt)
+    assert np.allclose(B[:, 0].sum(1), 1.0)
+    assert np.allclose(B[:, 1:].sum(2), 0.0, atol=1e-9)
+    h = 1e-6
+    for k in range(3):   # each order is the derivative of the one before (in time)
+        fd = (spline.basis(u + h, dt)[:, k] - spline.basis(u - h, dt)[:, k]) / (2 * h * dt)
+        assert np.allclose(fd, B[:, k + 1], rtol=1e-5, atol=1e-3 / dt ** (k + 1))
+
+
+def test_a_cubic_is_represented_exactly_with_its_derivatives():
+    """Control points fitted (least squares, here) to a cubic reproduce it and its rate and
+    acceleration everywhere (cubic B-splines contain the cubics)."""
+    grid = spline.KnotGrid(0.1, 0.01)
+    t = np.linspace(0.1, 0.3, 201)[:-1]
+    y = 2 * t ** 3 - t ** 2 + 0.5 * t - 1
+    j, u = grid.locate(t)
+    B = spline.basis(u, grid.dt)[:, 0]
+    A = np.zeros((t.size, 23))
+    for k in range(4):
+        A[np.arange(t.size), j + k] = B[:, k]
+    C = np.linalg.lstsq(A, y, rcond=None)[0][:, None]
+    v = spline.evaluate(C, 0, grid, t, 3)
+    assert np.allclose(v[:, 0, 0], y, atol=1e-10)
+    assert np.allclose(v[:, 1, 0], 6 * t ** 2 - 2 * t + 0.5, atol=1e-8)
+    assert np.allclose(v[:, 2, 0], 12 * t - 2, atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- linear algebra
+def _block_banded_problem(n_ctrl: int, nv: int = 3, nx: int = 2):
+    """A random SPD system with the estimator's structure: segment blocks over 4 control
+    points plus a dense border."""
+    nb = 4 * nv
+    n = n_ctrl * nv + nx
+    H_dense = np.zeros((n, n))
+    blocks, gs = [], []
+    for s in range(n_ctrl - 3):
+        J = RNG.normal(size=(nb + 5, nb + nx))
+        Hs, gs_ = J.T @ J, RNG.normal(size=nb + nx)
+        idx = np.r_[s * nv + np.arange(nb), n_ctrl * nv + np.arange(nx)]
+        H_dense[np.ix_(idx, idx)] += Hs
+        blocks.append(Hs)
+        gs.append(gs_)
+    return H_dense, np.array(blocks), np.array(gs), nb
+
+
+def test_banded_normal_equations_equal_the_dense_solution():
+    nv, nx, n_ctrl = 3, 2, 9
+    H, blocks, gs, nb = _block_banded_problem(n_ctrl, nv, nx)
+    ne = NormalEquations(n_ctrl, nv, nx)
+    ne.add_segments(np.arange(n_ctrl - 3), blocks, gs)
+    g = np.zeros(H.shape[0])
+    for s in range(n_ctrl - 3):
+        idx = np.r_[s * nv + np.arange(nb), n_ctrl * nv + np.arange(nx)]
+        g[idx] += gs[s]
+    damping = np.full(H.shape[0], 0.1)
+    # the solver adds RELATIVE_DAMPING x diag(H) to any damping asked for
+    dense = H + np.diag(damping + RELATIVE_DAMPING * np.diag(H))
+    assert np.allclose(ne.solve(damping), np.linalg.solve(dense, g), rtol=1e-10, atol=1e-13)
+
+
+def test_marginalisation_is_the_schur_complement_and_keeps_the_minimiser():
+    J = RNG.normal(size=(30, 12))
+    H, g = J.T @ J, RNG.normal(size=12)
+    Hp, gp = marginalize(H, g, 5)
+    z = np.linalg.solve(H, g)
+    assert np.allclose(np.linalg.solve(Hp, gp), z[5:], rtol=1e-9)
+
+
+def test_diffusion_adds_process_noise_to_the_covariance():
+    J = RNG.normal(size=(20, 6))
+    H, g = J.T @ J, RNG.normal(size=6)
+    mean = np.linalg.solve(H, g)
+    H2, g2 = diffuse(H, g, np.array([1, 4]), np.array([0.3, 2.0]))
+    P2 = np.linalg.inv(H) + np.diag([0, 0.3, 0, 0, 2.0, 0])
+    assert np.allclose(np.linalg.inv(H2), P2, rtol=1e-9)
+    assert np.allclose(np.linalg.solve(H2, g2), mean, rtol=1e-9)
+    E = RNG.normal(size=(6, 2))
+    H3, g3 = diffuse_along(H, g, E, np.array([0.5, 0.1]))
+    assert np.allclose(np.linalg.inv(H3), np.linalg.inv(H) + E @ np.diag([0.5, 0.1]) @ E.T,
+                       rtol=1e-9)
+    assert np.allclose(np.linalg.solve(H3, g3), mean, rtol=1e-9)
+
+
+# ----------------------------------------------------------------------------- synthetic truth
+@pytest.fixture(scope='module')
+def stance(truth, model):
+    """1.2 s of the reference jump's static squat held (an exact equilibrium of the model's
+    muscles and springs: its residual acceleration is 2e-13) with the paper's noise (no
+    bias), and the estimator run on it offline."""
+    n = 1297
+    held = replace(truth, t=np.arange(n) / 1080.0,
+                   **{f: np.repeat(getattr(truth, f)[:1], n, axis=0)
+                      for f in ('q', 'a', 'u', 'f', 'tau', 's', 'point_forces')},
+                   qd=np.zeros((n, 6)), qdd=np.zeros((n, 6)), liftoff_s=n / 1080.0)
+    st = MovingHorizonSettings()
+    rng = np.random.default_rng(3)
+    t_a = held.t[::9]
+    obs = Observations(
+        t_angles=t_a, angles=held.q[::9, :4] + rng.normal(size=(t_a.size, 4)) * st.angle_sd(),
+        t_wrench=held.t, wrench=held.s + rng.normal(size=(n, 3))
+        * st.wrench_sd(model.p.body_weight))
+    run = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
+    return held, obs, run
+
+
+def test_kernel_equals_the_independent_numpy_residuals(stance, model):
+    """The compiled segment kernel (SX residuals, J'J in C) and the numpy oracle give the
+    same Gauss-Newton blocks on a window of real data, perturbed off the optimum."""
+    held, obs, _ = stance
+    st = MovingHorizonSettings()
+    est = MovingHorizonEstimator(model, st)
+    for t, k, i in sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
+                          + [(t, 1, i) for i, t in enumerate(obs.t_wrench)]):
+        if t > 0.2:
+            break
+        (est.add_angles if k == 0 else est.add_wrench)(t, (obs.angles if k == 0
+                                                           else obs.wrench)[i])
+        est.poll()
+    w = est.window
+    C = w.C + 0.002 * RNG.normal(size=w.C.shape)
+    plate = w.plate + np.array([3.0, -2.0, 0.5, 0.004])
+    segs = np.arange(w.first + 2, w.first + 8)
+    kern = w.evaluate(segs, C, plate)
+    spec_w = CollocationWeights(
+        sd_height=st.contact_height_sd_m, sd_slip=st.contact_slip_sd_m_s,
+        full_load=st.contact_full_load_bw * model.p.body_weight,
+        free_load=st.contact_free_load_bw * model.p.body_weight,
+        full_share=st.contact_full_share, stiffness=model.p.contact.k_y,
+        wrench_accel_sd=st.wrench_accel_sd(model.p.body_weight), w_u=st.excitation_weight,
+        w_du=st.excitation_rate_weight, rho=st.bound_weight, tau_act=model.p.muscles.tau_act,
+        tau_deact=model.p.muscles.tau_deact)
+    mass_diag = np.diag(np.asarray(model.mass_matrix(np.zeros(6))))
+    fn = PointMap(collocation_function(model, np.maximum(st.dynamics_sd * mass_diag,
+                                                         st.dynamics_sd_floor)))
+
+    def in_segments(samples):
+        seg = w.grid.locate(samples.t)[0]
+        sel = np.isin(seg, segs)
+        return samples.t[sel], samples.y[sel]
+
+    ta, ya = in_segments(w.angles)
+    tw, yw = in_segments(w.wrench)
+    groups = [angle_group(C, w.first, w.grid, ta, ya, st.angle_sd(), st.huber_k),
+              wrench_group(C, w.first, w.grid, plate, tw, yw,
+                           st.wrench_sd(model.p.body_weight), st.huber_k)]
+    groups += collocation_groups(C, w.first, w.grid, segs, fn, spec_w)
+    H, g, cost = segment_blocks(groups, segs - w.first)
+    assert kern.H.shape == (segs.size, NB + NX, NB + NX)
+    assert np.allclose(kern.cost, cost, rtol=1e-9)
+    assert np.abs(kern.g - g).max() <= 1e-8 * np.abs(g).max()
+    assert np.abs(kern.H - H).max() <= 1e-9 * np.abs(H).max()
+
+
+def test_quiet_stance_is_tracked_without_loss_of_control(stance, model):
+    held, obs, run = stance
+    ref = run.refined
+    assert run.restarts == 0
+    assert not [e for e in run.events if e.level == 'error']
+    # an estimate for every force-plate instant, refined and low-latency
+    assert np.array_equal(ref.t, obs.t_wrench)
+    assert np.array_equal(run.low_latency.t, obs.t_wrench)
+    after = ref.t >= 0.2
+    err = np.abs(ref.tau[after] - held.tau[0]).mean(0)
+    # the paper's noise (5/3/2/1 deg, 2 % BW) on a still posture: joint torques within
+    # a few N m of the truth (holding torques 51 / 74 / 78 N m)
+    assert (err < np.array([4.0, 6.0, 6.0])).all(), err
+    ang = np.degrees(np.abs(ref.q[after, :4] - held.q[0, :4]).mean(0))
+    assert (ang < np.array([1.0, 1.0, 0.6, 0.3])).all(), ang
+
+
+def test_estimates_are_a_function_of_the_stream_alone(stance, model):
+    """Same samples, different arrival order across the two streams (within the estimator's
+    wait) and polling: bitwise the same estimates."""
+    _, obs, _ = stance
+    n_a, n_w = 60, 540          # 0.5 s
+    t_a, a = obs.t_angles[:n_a], obs.angles[:n_a]
+    t_w, s = obs.t_wrench[:n_w], obs.wrench[:n_w]
+
+    def run(order: list, poll_every: int) -> np.ndarray:
+        est = MovingHorizonEstimator(model)
+        out = []
+        for k, (kind, i) in enumerate(order):
+            if kind == 0:
+                est.add_angles(t_a[i], a[i])
+            else:
+                est.add_wrench(t_w[i], s[i])
+            if k % poll_every == 0:
+                out += est.poll()
+        out += est.poll() + est.finish()
+        return np.concatenate([b.tau for b in out if b.kind == 'refined'])
+
+    in_time = [x[1:] for x in sorted([(t, 0, i) for i, t in enumerate(t_a)]
+                                      + [(t, 1, i) for i, t in enumerate(t_w)])]
+    # angles delivered 20 ms late relative to the force plate (transport skew)
+    skewed = [x[1:] for x in sorted([(t + 0.02, 0, i) for i, t in enumerate(t_a)]
+                                     + [(t, 1, i) for i, t in enumerate(t_w)])]
+    base = run(in_time, 1)
+    assert np.array_equal(base, run(in_time, 37))
+    assert np.array_equal(base, run(skewed, 5))
+
+
+def test_occlusions_nan_samples_and_spikes_are_bridged(stance, model):
+    held, obs, _ = stance
+    angles, wrench = obs.angles.copy(), obs.wrench.copy()
+    angles[(obs.t_angles > 0.4) & (obs.t_angles < 0.65), 1:3] = np.nan   # 250 ms occlusion
+    wrench[RNG.choice(np.arange(300, 1200), 12, replace=False)] = np.nan  # isolated NaN
+    spikes = RNG.choice(np.arange(300, 1200), 5, replace=False)
+    wrench[spikes, 1] += 800.0                                           # force spikes
+    run = estimate(model, obs.t_angles, angles, obs.t_wrench, wrench)
+    ref = run.refined
+    assert run.restarts == 0
+    assert np.array_equal(ref.t, obs.t_wrench)
+    assert np.isfinite(ref.tau).all()
+    after = ref.t >= 0.2
+    err = np.abs(ref.tau[after] - held.tau[0]).mean(0)
+    assert (err < np.array([6.0, 9.0, 9.0])).all(), err
