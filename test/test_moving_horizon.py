@@ -5,11 +5,16 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from moving_horizon_oracle import (
+    CollocationWeights,
+    angle_group,
+    collocation_groups,
+    segment_blocks,
+    wrench_group,
+)
 import numpy as np
 import pytest
 
-from moving_horizon_oracle import CollocationWeights, angle_group, collocation_groups
-from moving_horizon_oracle import segment_blocks, wrench_group
 from nmt_ros.records import Observations
 from nmt_ros.tracking.moving_horizon import spline
 from nmt_ros.tracking.moving_horizon.estimator import MovingHorizonEstimator, estimate
@@ -21,7 +26,7 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
     marginalize,
 )
 from nmt_ros.tracking.moving_horizon.point_functions import PointMap, collocation_function
-from nmt_ros.tracking.moving_horizon.residuals import NB, NV, NX
+from nmt_ros.tracking.moving_horizon.residuals import NB, NX
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
 RNG = np.random.default_rng(7)
