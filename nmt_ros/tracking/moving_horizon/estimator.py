@@ -103,7 +103,7 @@ class MovingHorizonEstimator:
             w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
             tau_act=m.tau_act, tau_deact=m.tau_deact,
             wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free,
-            full_share=st.contact_full_share))
+            full_share=st.contact_full_share, release_sd=st.contact_release_sd))
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         self.plate_drift = np.asarray(st.plate_drift_sd, dtype=float) ** 2
@@ -229,6 +229,8 @@ class MovingHorizonEstimator:
                 why = 'non-finite estimate'
         except np.linalg.LinAlgError as exc:
             why = f'singular step ({exc})'
+        if why is None:
+            why = self._outside_envelope(t_u)
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
@@ -272,6 +274,29 @@ class MovingHorizonEstimator:
             return t_u - self.unhealthy_since < st.recover_after_s
         self.unhealthy_since = None
         return True
+
+    def _outside_envelope(self, t_u: float) -> str | None:
+        """Why the window's estimate is physically impossible (None: it is not): evaluated
+        at the window's knots and at the newest angle sample."""
+        st, w = self.settings, self.window
+        t = w.grid.time(np.arange(w.first, w.last + 1) + 0.5)
+        v = w.values(t, 2)
+        q, qd, s = v[:, 0, LAYOUT['q']], v[:, 1, LAYOUT['q']], v[:, 0, LAYOUT['s']]
+        bw = self.model.p.body_weight
+        if np.abs(qd[:, :4]).max() > st.max_rate_rad_s:
+            return f'segment rate {np.abs(qd[:, :4]).max():.0f} rad/s'
+        if np.hypot(s[:, 0], s[:, 1]).max() > st.max_force_bw * bw:
+            return f'ground force {np.hypot(s[:, 0], s[:, 1]).max() / bw:.1f} BW'
+        if np.abs(q[:, 4:6]).max() > st.max_translation_m:
+            return f'ankle {np.abs(q[:, 4:6]).max():.1f} m from the origin'
+        ta, ya = w.angles.t, w.angles.y
+        newest = np.nonzero(np.isfinite(ya).all(axis=1))[0][-3:]
+        if newest.size == 3:       # all three newest samples far off (not a spike)
+            err = np.abs(w.values(ta[newest], 1)[:, 0, :4] - ya[newest]).min(axis=0)
+            if np.degrees(err).max() > st.max_angle_error_deg:
+                return (f'a segment angle {np.degrees(err).max():.0f} deg from its three '
+                        'newest samples')
+        return None
 
     def _slide(self, t_u: float) -> None:
         st, w = self.settings, self.window

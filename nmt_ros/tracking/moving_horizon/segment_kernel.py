@@ -53,6 +53,7 @@ class KernelSpec:
     wrench_accel_sd: tuple        # [3] prior SD of the wrench's 2nd derivative [N/s^2 sqrt(s)]
     share_free: bool = False      # differentiate the contact points' load shares
     full_share: float = 0.2       # a point with this share of the vertical force is held
+    release_sd: float = 0.0       # a point lifted by more than this x sd_height lets go
 
 
 def _basis(u: ca.SX, dt: float) -> list[list[ca.SX]]:
@@ -147,11 +148,15 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         held_by = (ca.fmin(shares_now / s.full_share, 1.0)
                    * ca.fmin(ca.fmax((fy - s.free_load) / (s.full_load - s.free_load), 0.0),
                              1.0))
-        weight = hold(ca.sqrt(held_by), 'weight')
         load = share * fy
         heights = ca.vertcat(pos[1], pos[3])
         slips = ca.vertcat(vel[0], vel[2])
-        rows.append(colloc * weight * (heights + load / s.stiffness) / (s.sd_height * scale))
+        r_height = (heights + load / s.stiffness) / (s.sd_height * scale)
+        if s.release_sd > 0:   # a point the motion lifts is let go (redescending weight)
+            lift = ca.fmax(heights + shares_now * fy / s.stiffness, 0) / s.sd_height
+            held_by = held_by / (1 + (lift / s.release_sd) ** 2) ** 2
+        weight = hold(ca.sqrt(held_by), 'weight')
+        rows.append(colloc * weight * r_height)
         rows.append(colloc * weight * slips / (s.sd_slip * scale))
         # excitations (Eq. 8a inverted): effort, smoothness, bounds on u and a
         den = ca.fmax(1 - (1 - beta) * a, beta)   # a <= 1 exact; beyond, kept finite

@@ -49,6 +49,8 @@ class MovingHorizonSettings:
     contact_full_load_bw: float = 0.15  # points are held once the vertical force is this [BW]
     contact_free_load_bw: float = 0.05  # and free below this (airborne; above the noise)
     contact_full_share: float = 0.2    # ... in proportion to their share of it up to this
+    contact_release_sd: float = 0.0    # ... unless the motion lifts them by more than this
+                                       # many contact_height_sd_m (0: never let go)
     share_free: bool = False           # differentiate the load shares (else held, IRLS)
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
     # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
@@ -84,6 +86,11 @@ class MovingHorizonSettings:
     max_cost_per_row: float = 25.0     # mean normalised residual^2 of the newest data
     recover_after_s: float = 0.05      # that long above the limit -> re-initialise
     flight_force_bw: float = 0.05      # estimated vertical force below this: airborne
+    # the physical envelope of a healthy estimate (outside it: loss of control at once)
+    max_angle_error_deg: float = 45.0  # a segment angle this far from its newest sample
+    max_rate_rad_s: float = 150.0      # segment rates
+    max_force_bw: float = 15.0         # ground force magnitude
+    max_translation_m: float = 3.0     # the ankle from the origin
 
     def with_(self, **kw: object) -> MovingHorizonSettings:
         return replace(self, **kw)
