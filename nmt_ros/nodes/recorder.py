@@ -100,7 +100,6 @@ class RecorderNode(NmtNode):
             self.output = datetime.now().strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
         self.sim_time = bool(self.get_parameter('use_sim_time').value)
         self.status.settings = {'output': self.output, 'compression': self.compression}
-        self.types: dict[str, str] = {}
         self.last_message = time.monotonic()
         self.largest_take = 0
         self.writer: BackgroundBagWriter | None = None
@@ -150,7 +149,6 @@ class RecorderNode(NmtNode):
                 self.status.event(1, f'cannot record {topic} ({msgtype}): {exc}')
                 continue
             self.inputs.add(topic, cls, adapted_qos(offered, self.qos_depth), raw=True)
-            self.types[topic] = msgtype
             self.status.extra['topics'] = len(self.inputs)
             self.get_logger().info(f'recording {topic} [{msgtype}]')
 
