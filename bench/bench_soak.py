@@ -174,6 +174,12 @@ def main() -> int:
         if len(rows) < 2:
             continue
         t, rss, cpu = (np.array(c) for c in zip(*rows))
+        if t[-1] < 60.0:
+            report['nodes'][name] = {'exited_s': round(float(t[-1]), 1),
+                                     'rss_peak_mib': round(float(rss.max()), 1)}
+            print(f'{name:22s} exited after {t[-1]:.0f} s (peak RSS {rss.max():.1f} MiB): '
+                  'not soaked')
+            continue
         first = int(np.argmax(t >= 60.0)) if (t >= 60.0).any() else 0
         ref = rss[first]
         growth = (rss[-1] - ref) / ref * 100
