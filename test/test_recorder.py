@@ -336,3 +336,37 @@ def test_sigterm_mid_recording_leaves_a_finalised_bag(tmp_path, tmp_bag):
     assert np.all(np.diff(stamps) < 2 * PERIOD_NS)
     with AnyReader([record]) as reader:
         assert sum(1 for c, _, _ in reader.messages() if c.topic == FORCE_PLATE_WRENCH) == wrench
+
+
+BUSY_CHILD = r'''
+import sys
+from msg_adapters.wrench import to_wrench_stamped
+from nmt_ros.io.bags import BagWriter, close_bags_on_sigterm
+close_bags_on_sigterm()
+with BagWriter(sys.argv[1], flush_period_s=0.0, chunk_size=2048) as bag:
+    bag.add_topic('/w', 'geometry_msgs/msg/WrenchStamped')
+    i = 0
+    while True:    # no pause: a signal lands inside write() or a chunk flush
+        bag.write('/w', to_wrench_stamped(i * 925926, 'plate', [float(i), 0.0, 0.0]),
+                  i * 925926)
+        i += 1
+        if i == 2000:
+            print('ready', flush=True)
+'''
+
+
+@pytest.mark.parametrize('signum', [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_never_leaves_a_half_written_chunk(tmp_bag, signum):
+    """The bag's summary and metadata.yaml count exactly the messages the file holds."""
+    for attempt in range(3):
+        path = tmp_bag('busy')
+        child = subprocess.Popen([sys.executable, '-c', BUSY_CHILD, str(path)],
+                                 stdout=subprocess.PIPE, text=True)
+        assert child.stdout.readline().strip() == 'ready'
+        time.sleep(0.05 * attempt)
+        child.send_signal(signum)
+        child.wait(timeout=30)
+        info = bags.bag_info(path)
+        force = rosbags_force_x(path)
+        assert force.size == info.message_count >= 2000
+        np.testing.assert_array_equal(force, np.arange(force.size))

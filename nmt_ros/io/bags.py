@@ -25,19 +25,21 @@ Crash safety: the writer closes a chunk and flushes it to the OS every ``flush_p
 (default 1 s of wall time), so a killed recorder loses at most that much. The unfinished file
 has no summary and the folder no ``metadata.yaml``; :func:`reindex` (CLI: ``nmt bag reindex``,
 like ``ros2 bag reindex``) salvages every complete chunk into a valid MCAP and writes
-``metadata.yaml``. SIGINT raises KeyboardInterrupt and a ``with BagWriter(...)`` block then
-closes the bag cleanly; :func:`close_bags_on_sigterm` does the same for SIGTERM.
+``metadata.yaml``. After :func:`close_bags_on_sigterm`, SIGTERM and SIGINT end a
+``with BagWriter(...)`` block (the bag is closed cleanly), never in the middle of a write.
 """
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+import functools
 import io
 import os
 from pathlib import Path
 import re
 import signal
 import struct
+import threading
 import time
 from typing import Any, NamedTuple
 
@@ -263,6 +265,36 @@ def read_metadata_yaml(folder: str | os.PathLike) -> BagInfo:
 
 # --------------------------------------------------------------------------- writing
 
+class _Sections(threading.local):
+    """Per thread: how deep in a BagWriter section it is, and a signal's exception deferred
+    to the section's end (only the main thread, where Python runs signal handlers, defers)."""
+
+    depth = 0
+    pending: BaseException | None = None
+
+
+_SECTIONS = _Sections()
+
+
+def _uninterruptible(method: Any) -> Any:
+    """A BagWriter method that a SIGTERM/SIGINT of :func:`close_bags_on_sigterm` does not cut
+    in half: the signal's exception is raised when the outermost such method returns (an
+    exception raised half-way through writing a chunk left a bag whose summary counted
+    messages the file did not hold)."""
+    @functools.wraps(method)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        state = _SECTIONS
+        state.depth += 1
+        try:
+            return method(*args, **kwargs)
+        finally:
+            state.depth -= 1
+            if state.depth == 0 and state.pending is not None:
+                pending, state.pending = state.pending, None
+                raise pending
+    return wrapper
+
+
 class BagWriter:
     """Write a rosbag2 bag folder incrementally, split into several files like rosbag2.
 
@@ -367,6 +399,7 @@ class BagWriter:
         self._writer.finish()
         self._stream.close()
 
+    @_uninterruptible
     def split(self) -> None:
         """Finish the current file and continue in the next (``<name>_<i+1>.mcap``)."""
         self._check_open()
@@ -393,6 +426,7 @@ class BagWriter:
             metadata={'offered_qos_profiles': qos_list_to_yaml(topic.offered_qos),
                       'topic_type_hash': topic.type_hash})
 
+    @_uninterruptible
     def add_topic(self, topic: str, msgtype: str, qos: Any = None, *,
                   type_hash: str | None = None) -> None:
         """Declare a topic (type ``pkg/msg/Type``, offered QoS); idempotent for equal args."""
@@ -425,6 +459,7 @@ class BagWriter:
         return sum(self._counts.values())
 
     # -- messages
+    @_uninterruptible
     def write(self, topic: str, msg: Any, log_time_ns: int,
               publish_time_ns: int | None = None) -> None:
         """Append one message (rclpy message or CDR ``bytes``) with its times in ns."""
@@ -457,6 +492,7 @@ class BagWriter:
         if self._flush_period is not None and time.monotonic() >= self._next_flush:
             self.flush()
 
+    @_uninterruptible
     def flush(self) -> None:
         """Close the open chunk and hand everything written so far to the OS."""
         self._check_open()
@@ -476,6 +512,7 @@ class BagWriter:
             bag_size=0, start_ns=start, duration_ns=duration, message_count=self.message_count,
             topics=self.topics, ros_distro=self._ros_distro, custom_data=self._custom_data)
 
+    @_uninterruptible
     def close(self) -> BagInfo:
         """Finish the MCAP file (summary, statistics) and write ``metadata.yaml``; idempotent."""
         if self._closed:
@@ -500,12 +537,21 @@ class BagWriter:
 
 
 def close_bags_on_sigterm() -> None:
-    """Make SIGTERM raise ``SystemExit(143)`` so ``with BagWriter(...)`` blocks and ``finally``
-    clauses run and the bag is finalised (call from the main thread of a recorder process)."""
+    """Make SIGTERM raise ``SystemExit(143)`` (and SIGINT ``KeyboardInterrupt``) so
+    ``with BagWriter(...)`` blocks and ``finally`` clauses run and the bag is finalised (call
+    from the main thread of a recording process). A signal that arrives while the main thread
+    is inside a BagWriter method takes effect when that method returns, so no chunk is left
+    half written."""
     def _handler(signum: int, _frame: object) -> None:
-        raise SystemExit(128 + signum)
+        exc: BaseException = (KeyboardInterrupt() if signum == signal.SIGINT
+                              else SystemExit(128 + signum))
+        if _SECTIONS.depth:
+            _SECTIONS.pending = exc
+        else:
+            raise exc
 
     signal.signal(signal.SIGTERM, _handler)
+    signal.signal(signal.SIGINT, _handler)
 
 
 # --------------------------------------------------------------------------- reading
