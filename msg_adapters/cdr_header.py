@@ -9,6 +9,7 @@ vectorised over a whole topic.
 from __future__ import annotations
 
 from collections.abc import Sequence
+import struct
 
 import numpy as np
 
@@ -44,3 +45,16 @@ def header_stamps_ns(blobs: Sequence[bytes]) -> np.ndarray:
         raise ValueError(f'CDR message {i}: nanosec {nsec[i]} out of range (not a Header?)')
     out[:] = sec * NS_PER_S + nsec
     return out
+
+
+def with_header_stamp(blob: bytes, stamp_ns: int) -> bytes:
+    """A copy of a CDR message that starts with a ``std_msgs/Header`` with its stamp set to
+    ``stamp_ns`` [ns] (the rest of the bytes unchanged), in the message's own byte order."""
+    if len(blob) < _ENCAPSULATION + 8:
+        raise ValueError(f'CDR message too short to carry a header ({len(blob)} bytes)')
+    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    if not -(1 << 31) <= sec < (1 << 31):
+        raise ValueError(f'stamp {stamp_ns} ns does not fit a builtin_interfaces/Time')
+    order = '<' if blob[1] == 1 else '>'
+    head = struct.pack(f'{order}iI', sec, nanosec)
+    return bytes(blob[:_ENCAPSULATION]) + head + bytes(blob[_ENCAPSULATION + 8:])

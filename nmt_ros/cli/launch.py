@@ -6,7 +6,8 @@ Starts ``recorder`` (with ``--record``), ``muscle_tracker``, ``skeletal_tracker`
 ``observation_publisher`` as separate processes (``python -m nmt_ros.nodes.<node> --ros-args
 --params-file <merged file>``), with the environment of this process (so
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, ``ROS_LOCALHOST_ONLY=1`` and ``ROS_DOMAIN_ID``
-are inherited; unless a Fast DDS profile is already chosen, ``config/fastdds_profile.xml``
+are inherited; ``OPENBLAS_NUM_THREADS``/``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` default to 1;
+unless a Fast DDS profile is already chosen, ``config/fastdds_profile.xml``
 shortens the reliable heartbeat so end-of-replay acknowledgements take ms, not 3 s).
 Readiness propagates upstream: each tracker opens its inputs only when its outputs have
 their subscribers (``wait_for``), and the replay starts only when the
@@ -66,9 +67,20 @@ def default_bag() -> Path:
     return PACKAGE_ROOT / 'bags' / 'reference_jump'
 
 
+#: Thread pools of numpy's BLAS/LAPACK (OpenBLAS, MKL) and OpenMP: one thread per node process
+#: unless the user chose. Each node's factorisations are small; on 2 cores shared by four node
+#: processes a multithreaded BLAS spins its threads against the others' and was measured 100x
+#: slower for small factorisations under load.
+SINGLE_THREADED_MATH = {'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1',
+                        'MKL_NUM_THREADS': '1'}
+
+
 def ros_environment() -> dict[str, str]:
-    """This process's environment with the loopback-only ROS defaults and unbuffered output."""
+    """This process's environment with the loopback-only ROS defaults, single-threaded BLAS
+    (:data:`SINGLE_THREADED_MATH`, where the user set nothing) and unbuffered output."""
     env = dict(os.environ)
+    for key, value in SINGLE_THREADED_MATH.items():
+        env.setdefault(key, value)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env.setdefault('ROS_LOCALHOST_ONLY', '1')
     env.setdefault('AMENT_PREFIX_PATH', sys.prefix)

@@ -1,4 +1,5 @@
-"""rosbag2-compatible bags: a folder with ``metadata.yaml`` (v9) and ``<name>_0.mcap``.
+"""rosbag2-compatible bags: a folder with ``metadata.yaml`` (v9) and ``<name>_0.mcap``
+(``<name>_1.mcap``, ... when a recording is split by size or duration).
 
 What is written (and why) follows rosbag2 Jazzy's MCAP storage plugin so that ``ros2 bag
 info/play``, ``rosbags`` and the ``mcap`` tools read our bags:
@@ -12,7 +13,8 @@ info/play``, ``rosbags`` and the ``mcap`` tools read our bags:
 - A metadata record ``rosbag2`` with key ``serialized_metadata`` (YAML of the bag metadata,
   without the ``rosbag2_bagfile_information`` wrapper) at open and at close, plus the MCAP
   summary (Statistics, chunk/message indexes) that rosbag2 needs to open a file.
-- ``metadata.yaml``: version 9, every field, ``ros_distro: jazzy``, written on close.
+- ``metadata.yaml``: version 9, every field, ``ros_distro: jazzy``, written on close; it
+  lists every file of a split bag (``relative_file_paths``, ``files``) in order.
 
 Compression: chunks are compressed inside the MCAP (``compression='zstd'`` default, ``'lz4'``
 or ``'none'``), which every MCAP reader handles transparently. This is the storage-level
@@ -23,19 +25,21 @@ Crash safety: the writer closes a chunk and flushes it to the OS every ``flush_p
 (default 1 s of wall time), so a killed recorder loses at most that much. The unfinished file
 has no summary and the folder no ``metadata.yaml``; :func:`reindex` (CLI: ``nmt bag reindex``,
 like ``ros2 bag reindex``) salvages every complete chunk into a valid MCAP and writes
-``metadata.yaml``. SIGINT raises KeyboardInterrupt and a ``with BagWriter(...)`` block then
-closes the bag cleanly; :func:`close_bags_on_sigterm` does the same for SIGTERM.
+``metadata.yaml``. After :func:`close_bags_on_sigterm`, SIGTERM and SIGINT end a
+``with BagWriter(...)`` block (the bag is closed cleanly), never in the middle of a write.
 """
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+import functools
 import io
 import os
 from pathlib import Path
 import re
 import signal
 import struct
+import threading
 import time
 from typing import Any, NamedTuple
 
@@ -261,8 +265,38 @@ def read_metadata_yaml(folder: str | os.PathLike) -> BagInfo:
 
 # --------------------------------------------------------------------------- writing
 
+class _Sections(threading.local):
+    """Per thread: how deep in a BagWriter section it is, and a signal's exception deferred
+    to the section's end (only the main thread, where Python runs signal handlers, defers)."""
+
+    depth = 0
+    pending: BaseException | None = None
+
+
+_SECTIONS = _Sections()
+
+
+def _uninterruptible(method: Any) -> Any:
+    """A BagWriter method that a SIGTERM/SIGINT of :func:`close_bags_on_sigterm` does not cut
+    in half: the signal's exception is raised when the outermost such method returns (an
+    exception raised half-way through writing a chunk left a bag whose summary counted
+    messages the file did not hold)."""
+    @functools.wraps(method)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        state = _SECTIONS
+        state.depth += 1
+        try:
+            return method(*args, **kwargs)
+        finally:
+            state.depth -= 1
+            if state.depth == 0 and state.pending is not None:
+                pending, state.pending = state.pending, None
+                raise pending
+    return wrapper
+
+
 class BagWriter:
-    """Write a rosbag2 bag folder incrementally.
+    """Write a rosbag2 bag folder incrementally, split into several files like rosbag2.
 
     >>> with BagWriter('out/run1') as bag:
     ...     bag.add_topic('/force_plate/wrench', 'geometry_msgs/msg/WrenchStamped')
@@ -273,45 +307,126 @@ class BagWriter:
     no QoS anywhere get :data:`~nmt_ros.io.qos.OBSERVATION_QOS` (reliable, keep_last 1000).
     ``write`` accepts rclpy messages (serialised with ``rclpy.serialization``) or CDR bytes;
     with a message object an unknown topic is added automatically. Not thread-safe: write
-    from one thread (e.g. the executor thread of a recorder node).
+    from one thread (:class:`nmt_ros.io.background_writer.BackgroundBagWriter` gives a
+    recorder a writer thread with a bounded queue).
+
+    Splitting (rosbag2's ``--max-bag-size`` / ``--max-bag-duration``): before a message is
+    written, the current file is finished and ``<name>_<i+1>.mcap`` begun if it already holds
+    messages and either its size on disk reached ``max_bag_size`` bytes or the message's log
+    time is more than ``max_bag_duration_s`` after the file's first message (0 = no limit).
+    The size counts the chunks already written, so a file may exceed the limit by up to one
+    chunk (``chunk_size``). Every file is a complete MCAP with all schemas and channels known
+    when it began (and those added later) and its own ``rosbag2`` record; ``metadata.yaml``
+    lists them all.
     """
 
     def __init__(self, path: str | os.PathLike, topics_qos: Mapping[str, Any] | None = None,
                  *, compression: str = 'zstd', chunk_size: int = 512 * 1024,
                  flush_period_s: float | None = 1.0, ros_distro: str = ROS_DISTRO,
-                 custom_data: Mapping[str, str] | None = None, fsync: bool = False) -> None:
+                 custom_data: Mapping[str, str] | None = None, fsync: bool = False,
+                 max_bag_size: int = 0, max_bag_duration_s: float = 0.0) -> None:
         self.path = Path(path)
         if compression not in _COMPRESSION:
             raise ValueError(f'compression must be one of zstd, lz4, none; got {compression!r}')
+        if max_bag_size < 0 or max_bag_duration_s < 0:
+            raise ValueError(f'max_bag_size ({max_bag_size} B) and max_bag_duration_s '
+                             f'({max_bag_duration_s} s) must be >= 0 (0 = no splitting)')
         if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
             raise FileExistsError(f'bag path {self.path} already exists and is not empty; '
                                   'refusing to overwrite')
         self.path.mkdir(parents=True, exist_ok=True)
-        self.file_name = f'{self.path.resolve().name}_0.mcap'
-        self.mcap_path = self.path / self.file_name
+        self._name = self.path.resolve().name
+        self._compression = _COMPRESSION[compression]
+        self._chunk_size = int(chunk_size)
         self._topics_qos = dict(topics_qos or {})
         self._ros_distro = ros_distro
         self._custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
         self._flush_period = flush_period_s
         self._fsync = fsync
-        self._stream = open(self.mcap_path, 'xb')  # noqa: SIM115 (closed in close())
-        self._writer = Writer(self._stream, chunk_size=chunk_size,
-                              compression=_COMPRESSION[compression])
+        self.max_bag_size = int(max_bag_size)
+        self._max_duration_ns = int(round(max_bag_duration_s * 1e9))
+        self._schema_texts: dict[str, bytes] = {}
+        self._topics: dict[str, TopicInfo] = {}
+        self._counts: dict[str, int] = {}
+        self._start: int | None = None
+        self._end: int | None = None
+        self._files: list[FileInfo] = []   # finished files
+        self._closed = False
+        self._info: BagInfo | None = None
+        self._open_file(0)
+
+    # -- files
+    @property
+    def file_name(self) -> str:
+        """Name of the file being written (``<name>_<index>.mcap``)."""
+        return self._file_name
+
+    @property
+    def mcap_path(self) -> Path:
+        return self.path / self._file_name
+
+    @property
+    def file_names(self) -> tuple[str, ...]:
+        """Every file of the bag so far, the current one last."""
+        return tuple(f.path for f in self._files) + (self._file_name,)
+
+    def _open_file(self, index: int) -> None:
+        self._file_name = f'{self._name}_{index}.mcap'
+        self._stream = open(self.path / self._file_name, 'xb')  # noqa: SIM115 (closed later)
+        self._writer = Writer(self._stream, chunk_size=self._chunk_size,
+                              compression=self._compression)
         self._writer.start(profile=PROFILE, library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._topics: dict[str, TopicInfo] = {}
-        self._counts: dict[str, int] = {}
-        self._start = None
-        self._end = None
-        self._closed = False
-        self._info: BagInfo | None = None
+        for topic in self._topics.values():
+            self._register(topic)
+        self._file_start: int | None = None
+        self._file_end: int | None = None
+        self._file_count = 0
         self._writer.add_metadata('rosbag2', {
             'serialized_metadata': _dump_yaml(metadata_dict(self._snapshot()))})
-        self._next_flush = time.monotonic() + (flush_period_s or 0.0)
+        self._next_flush = time.monotonic() + (self._flush_period or 0.0)
         self.flush()
 
+    def _current_file_info(self) -> FileInfo:
+        start = self._file_start or 0
+        end = self._file_end if self._file_end is not None else start
+        return FileInfo(self._file_name, start, end - start, self._file_count)
+
+    def _finish_file(self) -> None:
+        self._writer.add_metadata('rosbag2', {
+            'serialized_metadata': _dump_yaml(metadata_dict(self._snapshot()))})
+        self._writer.finish()
+        self._stream.close()
+
+    @_uninterruptible
+    def split(self) -> None:
+        """Finish the current file and continue in the next (``<name>_<i+1>.mcap``)."""
+        self._check_open()
+        self._finish_file()
+        self._files.append(self._current_file_info())
+        self._open_file(len(self._files))
+
+    def _should_split(self, log_time_ns: int) -> bool:
+        if self._file_count == 0:
+            return False
+        if self.max_bag_size and self._stream.tell() >= self.max_bag_size:
+            return True
+        return bool(self._max_duration_ns) and (
+            log_time_ns - self._file_start > self._max_duration_ns)
+
     # -- topics
+    def _register(self, topic: TopicInfo) -> None:
+        """Schema (once per type) and channel of ``topic`` in the current file."""
+        if topic.type not in self._schemas:
+            self._schemas[topic.type] = self._writer.register_schema(
+                name=topic.type, encoding='ros2msg', data=self._schema_texts[topic.type])
+        self._channels[topic.name] = self._writer.register_channel(
+            topic=topic.name, message_encoding='cdr', schema_id=self._schemas[topic.type],
+            metadata={'offered_qos_profiles': qos_list_to_yaml(topic.offered_qos),
+                      'topic_type_hash': topic.type_hash})
+
+    @_uninterruptible
     def add_topic(self, topic: str, msgtype: str, qos: Any = None, *,
                   type_hash: str | None = None) -> None:
         """Declare a topic (type ``pkg/msg/Type``, offered QoS); idempotent for equal args."""
@@ -325,17 +440,12 @@ class BagWriter:
                 raise ValueError(f'topic {topic} already added with type '
                                  f'{self._topics[topic].type}, not {msgtype}')
             return
-        if msgtype not in self._schemas:
-            self._schemas[msgtype] = self._writer.register_schema(
-                name=msgtype, encoding='ros2msg',
-                data=msgdefs.full_definition(msgtype).encode('utf-8'))
+        if msgtype not in self._schema_texts:
+            self._schema_texts[msgtype] = msgdefs.full_definition(msgtype).encode('utf-8')
         thash = msgdefs.type_hash(msgtype) if type_hash is None else type_hash
-        self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding='cdr', schema_id=self._schemas[msgtype],
-            metadata={'offered_qos_profiles': qos_list_to_yaml(offered),
-                      'topic_type_hash': thash})
-        self._topics[topic] = TopicInfo(name=topic, type=msgtype, offered_qos=offered,
-                                        type_hash=thash)
+        info = TopicInfo(name=topic, type=msgtype, offered_qos=offered, type_hash=thash)
+        self._register(info)
+        self._topics[topic] = info
         self._counts[topic] = 0
 
     @property
@@ -343,27 +453,38 @@ class BagWriter:
         return tuple(replace(t, message_count=self._counts[t.name])
                      for t in self._topics.values())
 
+    @property
+    def message_count(self) -> int:
+        """Messages written so far (all files)."""
+        return sum(self._counts.values())
+
     # -- messages
+    @_uninterruptible
     def write(self, topic: str, msg: Any, log_time_ns: int,
               publish_time_ns: int | None = None) -> None:
         """Append one message (rclpy message or CDR ``bytes``) with its times in ns."""
         self._check_open()
-        channel = self._channels.get(topic)
-        if isinstance(msg, bytes | bytearray | memoryview):
-            if channel is None:
+        if topic not in self._channels:
+            if isinstance(msg, bytes | bytearray | memoryview):
                 raise KeyError(f'topic {topic} not added; call add_topic() before writing bytes')
+            self.add_topic(topic, msgdefs.message_type_name(msg))
+        if isinstance(msg, bytes | bytearray | memoryview):
             data = bytes(msg)
         else:
-            if channel is None:
-                self.add_topic(topic, msgdefs.message_type_name(msg))
-                channel = self._channels[topic]
             from rclpy.serialization import serialize_message
             data = serialize_message(msg)
         log_time_ns = int(log_time_ns)
+        if self._should_split(log_time_ns):
+            self.split()
         publish = log_time_ns if publish_time_ns is None else int(publish_time_ns)
-        self._writer.add_message(channel_id=channel, log_time=log_time_ns, data=data,
-                                 publish_time=publish, sequence=0)
+        self._writer.add_message(channel_id=self._channels[topic], log_time=log_time_ns,
+                                 data=data, publish_time=publish, sequence=0)
         self._counts[topic] += 1
+        self._file_count += 1
+        if self._file_start is None or log_time_ns < self._file_start:
+            self._file_start = log_time_ns
+        if self._file_end is None or log_time_ns > self._file_end:
+            self._file_end = log_time_ns
         if self._start is None or log_time_ns < self._start:
             self._start = log_time_ns
         if self._end is None or log_time_ns > self._end:
@@ -371,6 +492,7 @@ class BagWriter:
         if self._flush_period is not None and time.monotonic() >= self._next_flush:
             self.flush()
 
+    @_uninterruptible
     def flush(self) -> None:
         """Close the open chunk and hand everything written so far to the OS."""
         self._check_open()
@@ -384,23 +506,20 @@ class BagWriter:
     def _snapshot(self) -> BagInfo:
         start = self._start or 0
         duration = (self._end - start) if self._end is not None else 0
-        count = sum(self._counts.values())
+        files = tuple(self._files) + (self._current_file_info(),)
         return BagInfo(
-            path=self.path, relative_file_paths=(self.file_name,),
-            files=(FileInfo(self.file_name, start, duration, count),), bag_size=0,
-            start_ns=start, duration_ns=duration, message_count=count, topics=self.topics,
-            ros_distro=self._ros_distro, custom_data=self._custom_data)
+            path=self.path, relative_file_paths=tuple(f.path for f in files), files=files,
+            bag_size=0, start_ns=start, duration_ns=duration, message_count=self.message_count,
+            topics=self.topics, ros_distro=self._ros_distro, custom_data=self._custom_data)
 
+    @_uninterruptible
     def close(self) -> BagInfo:
-        """Finish the MCAP (summary, statistics) and write ``metadata.yaml``; idempotent."""
+        """Finish the MCAP file (summary, statistics) and write ``metadata.yaml``; idempotent."""
         if self._closed:
             assert self._info is not None
             return self._info
         info = self._snapshot()
-        self._writer.add_metadata('rosbag2', {
-            'serialized_metadata': _dump_yaml(metadata_dict(info))})
-        self._writer.finish()
-        self._stream.close()
+        self._finish_file()
         self._closed = True
         write_metadata_yaml(self.path, info)
         self._info = replace(info, bag_size=_directory_size(self.path))
@@ -418,12 +537,21 @@ class BagWriter:
 
 
 def close_bags_on_sigterm() -> None:
-    """Make SIGTERM raise ``SystemExit(143)`` so ``with BagWriter(...)`` blocks and ``finally``
-    clauses run and the bag is finalised (call from the main thread of a recorder process)."""
+    """Make SIGTERM raise ``SystemExit(143)`` (and SIGINT ``KeyboardInterrupt``) so
+    ``with BagWriter(...)`` blocks and ``finally`` clauses run and the bag is finalised (call
+    from the main thread of a recording process). A signal that arrives while the main thread
+    is inside a BagWriter method takes effect when that method returns, so no chunk is left
+    half written."""
     def _handler(signum: int, _frame: object) -> None:
-        raise SystemExit(128 + signum)
+        exc: BaseException = (KeyboardInterrupt() if signum == signal.SIGINT
+                              else SystemExit(128 + signum))
+        if _SECTIONS.depth:
+            _SECTIONS.pending = exc
+        else:
+            raise exc
 
     signal.signal(signal.SIGTERM, _handler)
+    signal.signal(signal.SIGINT, _handler)
 
 
 # --------------------------------------------------------------------------- reading

@@ -33,7 +33,7 @@ from msg_adapters.clock import to_clock
 from nmt_ros.io.bags import TopicInfo
 from nmt_ros.io.msgdefs import get_message_class
 from nmt_ros.io.qos import INFINITE_DURATION, OBSERVATION_QOS, OfferedQos
-from nmt_ros.io.replay import CLOCK, ReplayScheduler
+from nmt_ros.io.replay import CLOCK, Lateness, ReplayScheduler
 from nmt_ros.topics import CLOCK as CLOCK_TOPIC
 
 CLOCK_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -82,6 +82,7 @@ class PlaybackStats:
     per_topic: dict[str, int] = field(default_factory=dict)
     clock_messages: int = 0
     max_late_ns: int = 0
+    lateness: Lateness = field(default_factory=Lateness)   # of the messages (not /clock)
     wall_s: float = 0.0
     all_acked: bool = True
 
@@ -160,6 +161,7 @@ class BagPlayer:
                 continue
             item = event.item
             self.publishers[item.topic].publish(item.data)
+            stats.lateness.add(event.late_ns)
             stats.messages += 1
             stats.per_topic[item.topic] += 1
         stats.all_acked = self.wait_for_acks(ack_timeout_s)

@@ -24,6 +24,7 @@ import time
 from msg_adapters.cdr_header import header_stamp_ns
 from msg_adapters.diagnostics import ERROR
 from nmt_ros.io.bags import BagError, bag_info, read_raw
+from nmt_ros.io.replay import prefetched
 from nmt_ros.nodes.bag_player import BagPlayer
 from nmt_ros.nodes.node_base import NmtNode, data_qos
 from nmt_ros.nodes.readiness import missing_subscribers
@@ -98,13 +99,17 @@ class ObservationPublisherNode(NmtNode):
             self.status.state = 'replaying'
             self.status.mark_active()
             self.publish_status()
-            stats = self.player.play(read_raw(self.bag, self.topics), rate=self.rate,
+            stats = self.player.play(prefetched(read_raw(self.bag, self.topics)),
+                                     rate=self.rate,
                                      clock_hz=self.clock_hz if self.publish_clock else None,
                                      stop=self._stop, ack_timeout_s=0.0)
             self.stats = stats
             for topic, n in stats.per_topic.items():
                 self.status.publish(topic, n)
+            late = stats.lateness.summary_ms()
             self.status.extra.update({'max_late_ms': stats.max_late_ns / 1e6,
+                                      'late_p50_ms': late['p50_ms'],
+                                      'late_p99_ms': late['p99_ms'],
                                       'replay_wall_s': stats.wall_s})
             if self._stop.is_set():
                 self.status.state = 'stopped'

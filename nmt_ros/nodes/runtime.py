@@ -40,7 +40,9 @@ class _Stop:
 
 def make_executor(kind: str = 'single') -> Any:
     """``'single'``: rclpy's SingleThreadedExecutor; ``'events'``: the (experimental in Jazzy)
-    EventsExecutor, several times cheaper per callback, for nodes without raw subscriptions."""
+    EventsExecutor, 2-3x cheaper per typed message (``bench/bench_transport.py``), for nodes
+    whose subscriptions need no message info (it calls a raw callback with the bytes only).
+    A raw recorder takes its messages in batches instead (``polled_subscriptions``)."""
     if kind == 'events':
         try:
             from rclpy.experimental import EventsExecutor
