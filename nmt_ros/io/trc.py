@@ -61,7 +61,7 @@ def read_trc(path: str | Path) -> MarkerTable:
     if 'NumMarkers' in header and int(header['NumMarkers']) != n_markers:
         raise ValueError(f'{path}: NumMarkers = {header["NumMarkers"]} but {n_markers} names')
     rows = []
-    for i, line in enumerate(lines[5:], start=6):
+    for line in lines[5:]:
         if not line.strip():
             continue
         fields = line.split('\t')

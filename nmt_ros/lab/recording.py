@@ -196,7 +196,7 @@ def ik_segment_angles(lm: dict[str, np.ndarray], frame: SagittalFrame,
     sides, ankle = {}, {}
     for s in SIDES:
         cols = []
-        for seg, (a, b) in lines.items():
+        for a, b in lines.values():
             phi = sagittal.direction_angle(frame.project(lm[f'{s}_{a}']),
                                            frame.project(lm[f'{s}_{b}']))
             phi0 = float(sagittal.direction_angle(opensim.project(lm[f'default_{s}_{a}']),
