@@ -4,6 +4,8 @@ Run as subprocesses (OpenSim cannot share a process with casadi)::
 
     python -m nmt_ros.osim.subject measure --model M.osim --out OUT.json
     python -m nmt_ros.osim.subject kinematics --model M.osim --ik IK.mot --out OUT.npz
+    python -m nmt_ros.osim.subject scaled-jumper --model gait10dof18musc.osim --spec S.json \
+        --out OUT.json     (the cross-check of nmt_ros.model.subject: see scaled_jumper)
 
 Models named as OpenSim's gait2392 / gait10dof18musc / Rajagopal (2015) lineage are
 understood: bodies ``pelvis``, ``torso``, ``femur_{r,l}``, ``tibia_{r,l}``, ``talus_{r,l}``,
@@ -34,6 +36,7 @@ import argparse
 import json
 from pathlib import Path
 import sys
+import tempfile
 
 import numpy as np
 import opensim as osim
@@ -189,6 +192,54 @@ def kinematics(model_path: str | Path, ik_path: str | Path) -> dict[str, np.ndar
     return out
 
 
+#: Bodies of gait10dof18musc per planar segment (for OpenSim's own scaling of the jumper).
+JUMPER_BODIES = {'hat': ('pelvis', 'torso'), 'thigh': ('femur_r', 'femur_l'),
+                 'shank': ('tibia_r', 'tibia_l'),
+                 'foot': ('talus_r', 'talus_l', 'calcn_r', 'calcn_l', 'toes_r', 'toes_l')}
+JUMPER_COORDINATES = ('ankle_angle_r', 'knee_angle_r', 'hip_flexion_r')
+
+
+def scaled_jumper(source: str | Path, length: dict[str, float], mass_kg: float,
+                  poses: np.ndarray, muscles: list[str]) -> dict:
+    """OpenSim's own scaling of the jumper's source model (gait10dof18musc): every body of a
+    planar segment scaled uniformly by that segment's length factor, masses to ``mass_kg``
+    with the distribution preserved; then the measures and, at ``poses`` [n, 3] (ankle, knee,
+    hip, rad), the right-leg ``muscles``' lengths [n, m] and moment arms [n, m, 3]."""
+    model, state = load(source)
+    scales = osim.ScaleSet()
+    for seg, bodies in JUMPER_BODIES.items():
+        for body in bodies:
+            sc = osim.Scale()
+            sc.setSegmentName(body)
+            k = float(length[seg])
+            sc.setScaleFactors(osim.Vec3(k, k, k))
+            sc.setApply(True)
+            scales.cloneAndAppend(sc)
+    model.scale(state, scales, True, float(mass_kg))
+    path = Path(tempfile.mkdtemp()) / 'scaled.osim'
+    model.printToXML(str(path))
+    out = measure(path)
+    model, state = load(path)
+    coords = [model.getCoordinateSet().get(c) for c in JUMPER_COORDINATES]
+    lmt = np.zeros((poses.shape[0], len(muscles)))
+    arms = np.zeros((poses.shape[0], len(muscles), 3))
+    for i, pose in enumerate(np.asarray(poses, dtype=float)):
+        for c, v in zip(coords, pose):
+            c.setValue(state, float(v), False)
+        model.realizeVelocity(state)
+        for j, name in enumerate(muscles):
+            m = model.getMuscles().get(name)
+            lmt[i, j] = m.getLength(state)
+            for k, c in enumerate(coords):
+                arms[i, j, k] = m.computeMomentArm(state, c)
+    out.update({'musculotendon_lengths_m': lmt.tolist(), 'moment_arms_m': arms.tolist(),
+                'optimal_fiber_length_m': [model.getMuscles().get(n).getOptimalFiberLength()
+                                           for n in muscles],
+                'tendon_slack_length_m': [model.getMuscles().get(n).getTendonSlackLength()
+                                          for n in muscles]})
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m nmt_ros.osim.subject')
     sub = parser.add_subparsers(dest='cmd', required=True)
@@ -199,10 +250,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--model', required=True)
     p.add_argument('--ik', required=True)
     p.add_argument('--out', required=True)
+    p = sub.add_parser('scaled-jumper', help='OpenSim scaling of the jumper source model')
+    p.add_argument('--model', required=True, help='gait10dof18musc.osim')
+    p.add_argument('--spec', required=True,
+                   help='JSON: {"length": {segment: factor}, "mass_kg": M, "poses": [[..]], '
+                   '"muscles": [names]}')
+    p.add_argument('--out', required=True)
     args = parser.parse_args(argv)
     try:
         if args.cmd == 'measure':
             Path(args.out).write_text(json.dumps(measure(args.model), indent=1))
+        elif args.cmd == 'scaled-jumper':
+            spec = json.loads(Path(args.spec).read_text())
+            res = scaled_jumper(args.model, spec['length'], spec['mass_kg'],
+                                np.asarray(spec['poses'], dtype=float), spec['muscles'])
+            Path(args.out).write_text(json.dumps(res))
         else:
             np.savez(args.out, **kinematics(args.model, args.ik))
     except (ValueError, RuntimeError) as err:
