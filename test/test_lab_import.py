@@ -16,14 +16,15 @@ import numpy as np
 import pytest
 
 from nmt_ros.io.c3d import Plate, plate_channels, write_c3d
-from nmt_ros.io.opensim_files import write_table
+from nmt_ros.io.force_plates import read_plates
+from nmt_ros.io.marker_map import load_marker_map
+from nmt_ros.io.opensim_files import GroundLoad, write_table
 from nmt_ros.io.trc import read_trc, write_trc
 from nmt_ros.io.trial_bag import read_observations
-from nmt_ros.lab import recording
-from nmt_ros.lab.marker_map import load_marker_map
-from nmt_ros.lab.sagittal import SagittalFrame
 from nmt_ros.model.parameters import load_parameters
-from nmt_ros.model.subject import scale_parameters, subject_from_mass_height
+from nmt_ros.model.subject import scale_factors, scale_parameters, subject_from_mass_height
+from nmt_ros.study import lab_recording as recording
+from nmt_ros.study.sagittal import SagittalFrame
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = REPO / 'data' / 'real' / 'opencap_dropjump'
@@ -105,7 +106,7 @@ def synthetic_trial(n: int = 120) -> dict:
 def expected(trial: dict, subject: object) -> tuple[np.ndarray, np.ndarray]:
     th = 0.5 * (trial['theta']['r'] + trial['theta']['l'])
     angles = np.column_stack([th, trial['hat']])
-    params = scale_parameters(load_parameters(), recording.scale_factors(subject))
+    params = scale_parameters(load_parameters(), scale_factors(subject))
     com_foot = params.segments['foot'].com
     # the same smooth signals at the analog times (analytic, not interpolated)
     w = 2 * np.pi * 1.5
@@ -206,7 +207,7 @@ def test_marker_gap_repaired_and_reported(tmp_path: Path, trial: dict, subject: 
     i = trial['names'].index('RKNE')
     xyz[50:53, i] = np.nan                              # 15 ms
     markers = read_trc(write_trc(tmp_path / 'g.trc', trial['t'], trial['names'], xyz))
-    loads = [recording.GroundLoad(f, p, tq) for f, p, tq in trial['loads']]
+    loads = [GroundLoad(f, p, tq) for f, p, tq in trial['loads']]
     rec = recording.import_markers(markers, trial['ta'], loads, _map(), subject)
     assert rec.facts['repairs'] == [{'what': 'marker RKNE', 't_start_s': trial['t'][50],
                                      't_end_s': trial['t'][52], 'samples': 3}]
@@ -234,22 +235,22 @@ def test_bad_inputs_give_clear_errors(tmp_path: Path, trial: dict, subject: obje
     grf = write_table(tmp_path / 'nan.mot', trial['ta'], [
         f'ground_force_1_{q}{a}' for q in 'vpm' for a in 'xyz'], np.hstack([f, p, tq]))
     with pytest.raises(ValueError, match='plate ground_force_1: 1 NaN/inf row'):
-        recording.read_plates(grf)
+        read_plates(grf)
     # points of application in millimetres in a GRF .mot
     grf = write_table(tmp_path / 'mm.mot', trial['ta'], [
         f'ground_force_1_{q}{a}' for q in 'vpm' for a in 'xyz'],
         np.hstack([trial['loads'][0][0], trial['loads'][0][1] * 1e3, tq]))
     with pytest.raises(ValueError, match='not metres'):
-        recording.read_plates(grf)
+        read_plates(grf)
     # a plate without free-moment columns
     grf = write_table(tmp_path / 'nom.mot', trial['ta'], [
         f'ground_force_1_{q}{a}' for q in 'vp' for a in 'xyz'], np.hstack([f * 0, p]))
     with pytest.raises(ValueError, match='no free-moment columns'):
-        recording.read_plates(grf)
+        read_plates(grf)
     # a subject facing the other way
     markers = read_trc(write_trc(tmp_path / 'f.trc', trial['t'], trial['names'],
                                  trial['xyz']))
-    loads = [recording.GroundLoad(*ld) for ld in trial['loads']]
+    loads = [GroundLoad(*ld) for ld in trial['loads']]
     with pytest.raises(ValueError, match='feet point backward'):
         recording.import_markers(markers, trial['ta'], loads, _map(), subject,
                                  SagittalFrame('-y', '+z'))
@@ -259,8 +260,8 @@ def test_bad_inputs_give_clear_errors(tmp_path: Path, trial: dict, subject: obje
 def test_ik_route_agrees_with_markers_on_the_shipped_recording() -> None:
     """IK posed on final.osim vs the TRC by the shipped marker map: same angles within the
     marker registration error (measured RMS 1.7/2.1/1.5/1.6 deg foot/shank/thigh/HAT)."""
-    from nmt_ros.lab.opensim_process import measure_model
     from nmt_ros.model.subject import subject_from_measures
+    from nmt_ros.osim.subject_process import measure_model
     subject = subject_from_measures(measure_model(REAL / 'Models' / 'final.osim'), 'DJ1')
     a = recording.import_ik(REAL / 'IK' / 'DJ1_ik.mot', REAL / 'ID' / 'DJ1_grf.mot',
                             REAL / 'Models' / 'final.osim', subject,

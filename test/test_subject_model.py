@@ -149,7 +149,7 @@ def test_subject_scaling_against_opensim(tmp_path: Path) -> None:
     ILPSO 4.9, HAMS 0.4, BFSH 0.6, RF 3.4, VAS 4.3, GAS 15.5, SOL 15.3, TA 3.6 (the ankle
     plantarflexors' moment arm grows with the calcaneus, i.e. the foot's 1.28, while their
     length follows the shank's 1.086: one factor per muscle cannot do both)."""
-    from nmt_ros.lab.opensim_process import measure_model
+    from nmt_ros.osim.subject_process import measure_model
     subject = subject_from_measures(measure_model(REAL_MODEL), 'DJ1')
     scale = scale_factors(subject)
     res, _, params = _crosscheck(tmp_path, scale.length, subject.mass_kg)

@@ -109,6 +109,19 @@ def subject_from_measures(measures: dict, name: str = 'subject',
                    source=f'OpenSim model {measures.get("model", "?")}')
 
 
+def subject_with_mass(subject: Subject, mass_kg: float) -> Subject:
+    """The subject with body mass ``mass_kg`` [kg]: every segment mass scaled by the same
+    factor (the model's mass distribution kept), lengths unchanged. For a scaled model whose
+    masses are not the subject's (e.g. a generic model's masses left unscaled), when the mass
+    is known otherwise (weighed, or implied by the force plates)."""
+    if not (np.isfinite(mass_kg) and 20.0 <= mass_kg <= 250.0):
+        raise ValueError(f'body mass {mass_kg} kg is outside 20..250 kg')
+    k = float(mass_kg) / subject.mass_kg
+    return replace(subject, mass_kg=float(mass_kg),
+                   segment_masses_kg={n: v * k for n, v in subject.segment_masses_kg.items()},
+                   source=f'{subject.source}; masses scaled x{k:.4f} to {mass_kg:g} kg')
+
+
 def scale_factors(subject: Subject, params: JumperParameters | None = None,
                   rules: dict | None = None) -> SubjectScale:
     """The factors that make the jumper this subject (module docstring)."""

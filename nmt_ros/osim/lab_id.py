@@ -34,8 +34,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import opensim as osim
 
-from nmt_ros.io.opensim_files import read_table, write_table
 from nmt_ros.osim.fit_paths import quiet_opensim
+from nmt_ros.osim.subject import read_opensim_table as read_table
 
 #: (our label, OpenSim coordinate without side suffix, sign into our convention)
 SAGITTAL = (('ankle_angle_moment', 'ankle_angle', 1.0),
@@ -102,6 +102,21 @@ def write_loads(path: Path, grf_path: Path, feet: dict[str, str]) -> Path:
     return path
 
 
+def write_sto(path: Path, time: np.ndarray, labels: list[str], data: np.ndarray, name: str,
+              metadata: dict) -> Path:
+    """A table as a .sto through OpenSim's own STOFileAdapter (extra header lines: metadata)."""
+    table = osim.TimeSeriesTable()
+    table.setColumnLabels(list(labels))
+    for t, row in zip(time, np.asarray(data, dtype=float)):
+        table.appendRow(float(t), osim.RowVector([float(v) for v in row]))
+    table.addTableMetaDataString('name', name)
+    table.addTableMetaDataString('inDegrees', 'no')
+    for k, v in metadata.items():
+        table.addTableMetaDataString(str(k), str(v))
+    osim.STOFileAdapter.write(table, str(path))
+    return path
+
+
 def run_id(model_path: Path, ik_path: Path, grf_path: Path, out: Path,
            lowpass_hz: float = -1.0) -> dict:
     quiet_opensim()
@@ -144,7 +159,7 @@ def run_id(model_path: Path, ik_path: Path, grf_path: Path, out: Path,
     meta = {'plates_on': ' '.join(f'{k}:{v}' for k, v in feet.items()),
             'lowpass_hz': lowpass_hz,
             'note': 'first 3 columns: both legs summed in nmt_ros signs (knee negated)'}
-    write_table(out, res.time, labels, data, name='opensim_id', metadata=meta)
+    write_sto(out, res.time, labels, data, 'opensim_id', meta)
     peaks = {lab: float(np.abs(data[:, i]).max()) for i, lab in enumerate(labels)}
     return {'feet': feet, 'peaks_abs_nm': peaks, 'external_loads': str(loads_xml)}
 

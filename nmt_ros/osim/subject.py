@@ -22,7 +22,7 @@ understood: bodies ``pelvis``, ``torso``, ``femur_{r,l}``, ``tibia_{r,l}``, ``ta
 
 ``kinematics`` poses the model at every row of an inverse-kinematics .mot (``inDegrees``
 honoured; translations in m) and writes per row, in ground [n, 3] (m), the body-fixed
-landmarks that define the sagittal segment lines of ``nmt_ros.lab.sagittal``:
+landmarks that define the sagittal segment lines of ``nmt_ros.study.sagittal``:
   ``{s}_hip`` (femur), ``{s}_knee`` (the knee joint's tibia frame: the knee centre both
   lines share, as in a marker analysis), ``{s}_ankle`` (tibia),
   ``{s}_subtalar`` (calcn), ``{s}_mtp`` (calcn), ``{s}_hip_pelvis`` (pelvis),
@@ -33,6 +33,7 @@ landmarks that define the sagittal segment lines of ``nmt_ros.lab.sagittal``:
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 import json
 from pathlib import Path
 import sys
@@ -41,7 +42,6 @@ import tempfile
 import numpy as np
 import opensim as osim
 
-from nmt_ros.io.opensim_files import read_table
 from nmt_ros.osim.fit_paths import quiet_opensim
 
 SIDES = ('r', 'l')
@@ -149,8 +149,37 @@ def measure(path: str | Path) -> dict:
             'markers_m': markers, 'landmarks_m': {k: v.tolist() for k, v in marks.items()}}
 
 
+@dataclass(frozen=True)
+class Table:
+    """An OpenSim .sto/.mot table read with OpenSim's own TimeSeriesTable."""
+
+    time: np.ndarray          # [n] s
+    labels: tuple[str, ...]
+    data: np.ndarray          # [n, k]
+    in_degrees: bool
+
+    def column(self, label: str) -> np.ndarray:
+        """[n] values of one column; ValueError naming the file's columns if absent."""
+        if label not in self.labels:
+            raise ValueError(f'no column {label!r} (columns: {", ".join(self.labels)})')
+        return self.data[:, self.labels.index(label)]
+
+
+def read_opensim_table(path: str | Path) -> Table:
+    """A .sto/.mot file through ``osim.TimeSeriesTable`` (``inDegrees`` from its header)."""
+    quiet_opensim()
+    table = osim.TimeSeriesTable(str(path))
+    keys = list(table.getTableMetaDataKeys())
+    in_deg = ('inDegrees' in keys
+              and table.getTableMetaDataAsString('inDegrees').strip().lower() == 'yes')
+    data = table.getMatrix().to_numpy() if table.getNumRows() else np.zeros((0, 0))
+    return Table(time=np.asarray(table.getIndependentColumn(), dtype=float),
+                 labels=tuple(table.getColumnLabels()), data=np.asarray(data, dtype=float),
+                 in_degrees=in_deg)
+
+
 def _ik_table(path: str | Path) -> tuple[np.ndarray, list[str], np.ndarray, bool]:
-    table = read_table(path)
+    table = read_opensim_table(path)
     return table.time, list(table.labels), table.data, table.in_degrees
 
 

@@ -7,12 +7,12 @@ recording's own rates and times, the subject, and what was done):
   OpenSim subprocess) gives each leg's body-fixed landmarks (hip, knee and ankle centres, the
   calcaneus' subtalar and MTP joint centres, hips and shoulders for the trunk);
 * :func:`import_markers` (:func:`import_trc`, :func:`import_c3d`): markers named by a marker
-  map (``nmt_ros.lab.marker_map``), short gaps filled and reported;
+  map (``nmt_ros.io.marker_map``), short gaps filled and reported;
 * the ground reaction from an OpenSim GRF .mot (plates found by their column names, or named by
   an ExternalLoads .xml) or from the C3D's own force plates.
 
 Segment angles, the leg combination (mean of left and right) and the plate sum follow
-``nmt_ros.lab.sagittal``. The trunk (HAT) angle is the hips-to-shoulders line's, i.e. the
+``nmt_ros.study.sagittal``. The trunk (HAT) angle is the hips-to-shoulders line's, i.e. the
 trunk's absolute angle (pelvis tilt plus lumbar extension in OpenSim's coordinates). The
 wrench's moment is about the foot COM of the subject-scaled planar model placed on the
 combined ankle centre and foot angle, resampled (cubic) onto the force samples; force samples
@@ -25,22 +25,22 @@ import hashlib
 import json
 import os
 from pathlib import Path
-import re
 
 import numpy as np
 
-from nmt_ros.io.opensim_files import GroundLoad, read_external_loads_xml, read_table
+from nmt_ros import topics
+from nmt_ros.io.force_plates import read_plates
+from nmt_ros.io.marker_map import LEG_LANDMARKS, LEG_LINES, SIDES, landmark, markers_used
+from nmt_ros.io.opensim_files import GroundLoad
 from nmt_ros.io.trc import MarkerTable, read_trc
-from nmt_ros.lab import sagittal
-from nmt_ros.lab.marker_map import LEG_LANDMARKS, LEG_LINES, SIDES, landmark, markers_used
-from nmt_ros.lab.sagittal import SagittalFrame
 from nmt_ros.model.parameters import SEGMENTS, load_parameters
 from nmt_ros.model.subject import Subject, SubjectScale, scale_factors, scale_parameters
+from nmt_ros.records import Observations
+from nmt_ros.study import sagittal
+from nmt_ros.study.sagittal import SagittalFrame
 
 #: Largest marker gap filled by interpolation [s] unless told otherwise.
 MAX_GAP_S = 0.1
-#: A plate's point of application farther than this from the lab origin means wrong units [m].
-MAX_POINT_M = 20.0
 
 
 @dataclass
@@ -51,6 +51,7 @@ class LabRecording:
     angles: np.ndarray            # [n1, 4] rad, foot, shank, thigh, hat (legs combined)
     t_wrench: np.ndarray          # [n2] s
     wrench: np.ndarray            # [n2, 3] N, N, N m about the planar foot COM
+    ankle: np.ndarray             # [n1, 2] m, the combined ankle centre (sagittal), at t_angles
     subject: Subject
     scale: SubjectScale
     sides: dict = field(default_factory=dict)    # per leg: angles [n1, 3] (foot, shank, thigh)
@@ -64,67 +65,6 @@ def file_fact(path: str | os.PathLike) -> dict:
 
 def _rate(t: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t))) if t.size > 1 else float('nan')
-
-
-# ---------------------------------------------------------------------------------------------
-# ground reaction files
-# ---------------------------------------------------------------------------------------------
-
-def read_plates(grf: str | os.PathLike, external_loads: str | os.PathLike | None = None,
-                ) -> tuple[np.ndarray, list[GroundLoad], list[str]]:
-    """(time [n], one GroundLoad per plate (ground frame, N / m / N m), plate names).
-
-    With ``external_loads`` its ExternalForces name the columns (force and point expressed in
-    ground); without, every ``<prefix>_vx/vy/vz`` triple is a plate, with its point
-    ``<prefix>_px..`` and free torque ``<prefix>_mx..`` or ``<torque prefix>_x..`` (``force`` ->
-    ``torque`` in the prefix). Missing columns, NaN samples and points of application too far
-    for metres are refused.
-    """
-    table = read_table(grf)
-    labels = set(table.labels)
-    specs: list[tuple[str, str, str, str]] = []      # name, force, point, torque identifiers
-    if external_loads is not None:
-        _, forces = read_external_loads_xml(external_loads)
-        if not forces:
-            raise ValueError(f'{external_loads}: no ExternalForce')
-        for f in forces:
-            for what, frame in (('force', f.force_expressed_in_body),
-                                ('point', f.point_expressed_in_body)):
-                if frame != 'ground':
-                    raise ValueError(f'{external_loads}: {f.name}: {what} expressed in '
-                                     f'{frame!r}; only ground is supported')
-            specs.append((f.name, f.force_identifier, f.point_identifier, f.torque_identifier))
-    else:
-        prefixes = sorted({lab[:-3] for lab in labels if re.search(r'_v[xyz]$', lab)
-                           and all(f'{lab[:-3]}_v{c}' in labels for c in 'xyz')})
-        if not prefixes:
-            raise ValueError(f'{grf}: no force columns (<prefix>_vx, _vy, _vz)')
-        for pre in prefixes:
-            cands = [f'{pre}_m', pre.replace('force', 'torque') + '_']
-            torque = next((c for c in cands if all(f'{c}{a}' in labels for a in 'xyz')), None)
-            if torque is None:
-                raise ValueError(f'{grf}: plate {pre}: no free-moment columns ({cands[0]}x.. or '
-                                 f'{cands[1]}x..); name them with --external-loads')
-            specs.append((pre, f'{pre}_v', f'{pre}_p', torque))
-    loads, names = [], []
-    for name, fid, pid, tid in specs:
-        cols = [f'{fid}{a}' for a in 'xyz'] + [f'{pid}{a}' for a in 'xyz']
-        cols += [f'{tid}{a}' for a in 'xyz']
-        values = table.columns(cols)
-        bad = ~np.all(np.isfinite(values), axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise ValueError(f'{grf}: plate {name}: {int(bad.sum())} NaN/inf row(s), first at '
-                             f't = {table.time[i]:.4f} s')
-        force, point, torque = values[:, :3], values[:, 3:6], values[:, 6:]
-        loaded = np.linalg.norm(force, axis=1) > 1.0
-        if loaded.any() and np.abs(point[loaded]).max() > MAX_POINT_M:
-            raise ValueError(f'{grf}: plate {name}: points of application up to '
-                             f'{np.abs(point[loaded]).max():.0f} from the origin: not metres '
-                             '(OpenSim GRF files are N, m, N m)')
-        loads.append(GroundLoad(force, point, torque))
-        names.append(name)
-    return table.time, loads, names
 
 
 # ---------------------------------------------------------------------------------------------
@@ -174,13 +114,14 @@ def _assemble(t_kin: np.ndarray, side_angles: dict[str, np.ndarray], hat: np.nda
     facts.update({
         'angles_rate_hz': _rate(t_kin), 'wrench_rate_hz': _rate(t_w),
         'frame': {'forward': frame.forward, 'up': frame.up},
-        'legs': 'mean of the left and right segment angles (nmt_ros.lab.sagittal)',
+        'legs': 'mean of the left and right segment angles (nmt_ros.study.sagittal)',
         'left_right_rms_deg': {k: float(np.rad2deg(v)) for k, v in lr_rms.items()},
         'wrench_samples_dropped': int((~keep).sum()),
         'wrench_moment_about': 'planar foot COM: mean ankle centre + R(foot) c_foot (subject)',
     })
     return LabRecording(t_angles=t_kin, angles=angles, t_wrench=t_w, wrench=wrench,
-                        subject=subject, scale=scale, sides=side_angles, facts=facts)
+                        ankle=ankle_mid, subject=subject, scale=scale, sides=side_angles,
+                        facts=facts)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -219,7 +160,7 @@ def import_ik(ik: str | os.PathLike, grf: str | os.PathLike, model: str | os.Pat
               subject: Subject, external_loads: str | os.PathLike | None = None,
               frame: SagittalFrame | None = None) -> LabRecording:
     """IK .mot + GRF .mot on the subject's .osim (module docstring)."""
-    from nmt_ros.lab.opensim_process import ik_landmarks
+    from nmt_ros.osim.subject_process import ik_landmarks
     frame = frame or SagittalFrame('+x', '+y')
     lm = ik_landmarks(model, ik)
     t = lm['time']
@@ -258,7 +199,7 @@ def marker_segment_angles(markers: MarkerTable, marker_map: dict, frame: Sagitta
     if zero is None or offsets is None:
         raise ValueError(f'{marker_map.get("source_file", "marker map")}: not calibrated (no '
                          'zero_deg / ankle_offset_m): give --model or run python -m '
-                         'nmt_ros.lab.marker_map --model M.osim --map MAP')
+                         'nmt_ros.study.marker_calibration --model M.osim --map MAP')
     sides, ankle = {}, {}
     for s in SIDES:
         p = {k: frame.project(landmark(marker_map, s, k, pos)) for k in LEG_LANDMARKS}
@@ -326,21 +267,132 @@ def import_c3d(c3d: str | os.PathLike, marker_map: dict, subject: Subject,
 
 
 # ---------------------------------------------------------------------------------------------
+# the whole import: subject, route, momentum balance
+# ---------------------------------------------------------------------------------------------
+
+#: Implied and model body mass differing by more than this fraction is warned about.
+MASS_TOLERANCE = 0.05
+
+
+def lab_subject(name: str, model: str | os.PathLike | None = None,
+                mass_kg: float | None = None, height_m: float | None = None,
+                ) -> tuple[Subject, dict | None]:
+    """The subject of an import and the model's measures (None without a model).
+
+    From the .osim (its masses and segment lengths; with ``mass_kg`` its masses scaled to
+    that body mass), or from mass and stature alone (the jumper's proportions).
+    """
+    from nmt_ros.model.subject import (
+        subject_from_mass_height,
+        subject_from_measures,
+        subject_with_mass,
+    )
+    if model is not None:
+        if height_m is not None:
+            raise ValueError('--height goes without --model (the model gives the lengths)')
+        from nmt_ros.osim.subject_process import measure_model
+        measures = measure_model(model)
+        subject = subject_from_measures(measures, name)
+        if mass_kg is not None:
+            subject = subject_with_mass(subject, mass_kg)
+        return subject, measures
+    if mass_kg is not None and height_m is not None:
+        return subject_from_mass_height(mass_kg, height_m, name), None
+    raise ValueError('no subject: give --model SUBJECT.osim [--mass KG], or --mass KG '
+                     '--height M')
+
+
+def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | None = None,
+               grf: Path | None = None, external_loads: Path | None = None,
+               model: Path | None = None, mass_kg: float | None = None,
+               height_m: float | None = None, name: str | None = None,
+               marker_map: Path | None = None, forward: str | None = None,
+               up: str | None = None, max_gap_s: float | None = None) -> LabRecording:
+    """``nmt import-lab``: one route (IK, TRC or C3D) to a :class:`LabRecording` with its
+    subject and the momentum balance checked (:func:`check_momentum`)."""
+    from nmt_ros.io.marker_map import load_marker_map
+    from nmt_ros.study.marker_calibration import calibrate
+    routes = {'ik': ik, 'trc': trc, 'c3d': c3d}
+    given = [r for r, v in routes.items() if v is not None]
+    if len(given) != 1:
+        raise ValueError('give exactly one of --ik, --trc, --c3d')
+    route = given[0]
+    if route in ('ik', 'trc') and grf is None:
+        raise ValueError(f'--{route} needs --grf')
+    if route == 'ik' and model is None:
+        raise ValueError('--ik needs --model (the .osim the IK was solved with)')
+    source = Path(routes[route])
+    subject, measures = lab_subject(name or source.stem, model, mass_kg, height_m)
+    kw = {} if max_gap_s is None else {'max_gap_s': max_gap_s}
+    if route == 'ik':
+        frame = SagittalFrame(forward or '+x', up or '+y')
+        rec = import_ik(ik, grf, model, subject, external_loads, frame)
+    else:
+        mmap = load_marker_map(marker_map)
+        if measures is not None and all(n in measures['markers_m'] for n in markers_used(mmap)):
+            mmap = {**calibrate(mmap, measures), 'source_file': mmap['source_file']}
+        frame_map = mmap.get('frame', {})
+        frame = SagittalFrame(forward or frame_map.get('forward', '+x'),
+                              up or frame_map.get('up', '+y'))
+        if route == 'trc':
+            rec = import_trc(trc, grf, mmap, subject, external_loads, frame, **kw)
+        else:
+            rec = import_c3d(c3d, mmap, subject, grf, external_loads, frame, **kw)
+    check_momentum(rec)
+    return rec
+
+
+def check_momentum(rec: LabRecording) -> dict:
+    """The recording's momentum balance with its subject's model
+    (``nmt_ros.study.momentum_balance``): the implied body mass, the unmeasured support and
+    its step-off, in ``rec.facts['momentum_balance']``; a warning in ``rec.facts['warnings']``
+    when the implied mass differs from the subject's by more than :data:`MASS_TOLERANCE`."""
+    from nmt_ros.model.jumper import JumperModel
+    from nmt_ros.model.subject import scale_parameters
+    from nmt_ros.study.momentum_balance import momentum_balance
+    model = JumperModel(scale_parameters(load_parameters(), rec.scale))
+    mb = momentum_balance(model, rec.t_angles, rec.angles, rec.t_angles, rec.ankle,
+                          rec.t_wrench, rec.wrench)
+    report = mb.report(rec.subject.mass_kg)
+    rec.facts['momentum_balance'] = report
+    warnings = rec.facts.setdefault('warnings', [])
+    implied = mb.implied
+    if implied is None:
+        warnings.append('no body mass could be estimated from the recording (neither a quiet '
+                        'stance on the plates nor a contact between two flights)')
+    elif abs(implied.mass_kg / rec.subject.mass_kg - 1.0) > MASS_TOLERANCE:
+        warnings.append(
+            f'the force plates imply a body mass of {implied.mass_kg:.1f} kg '
+            f'({implied.method}, {implied.interval_s[0]:.3f}..{implied.interval_s[1]:.3f} s), '
+            f'{100 * (implied.mass_kg / rec.subject.mass_kg - 1):+.1f} % from the model\'s '
+            f'{rec.subject.mass_kg:.1f} kg (more than {100 * MASS_TOLERANCE:g} %): check the '
+            'model\'s masses, or give the measured mass with --mass')
+    if mb.unmeasured_support_s is not None:
+        a, b = mb.unmeasured_support_s
+        warnings.append(f'{a:.3f}..{b:.3f} s: the body is supported by something that is not '
+                        f'on a force plate (the COM does not fall while the plates read no '
+                        f'load); step-off at {b:.3f} s, where `nmt track` starts by default')
+    return report
+
+
+# ---------------------------------------------------------------------------------------------
 # the bag
 # ---------------------------------------------------------------------------------------------
 
 def write_lab_bag(out: str | os.PathLike, rec: LabRecording) -> Path:
     """The recording as an observation bag (trial time = recording time) + ``subject.yaml``."""
-    from nmt_ros.io.trial_bag import WRENCH_FRAME, write_trial_bag
+    from nmt_ros.io.trial_bag import write_trial_bag
     from nmt_ros.model.subject import write_subject
-    from nmt_ros.study.trial import Observations
     obs = Observations(t_angles=rec.t_angles, angles=rec.angles, t_wrench=rec.t_wrench,
-                       wrench=rec.wrench, frame_id=WRENCH_FRAME)
+                       wrench=rec.wrench, frame_id=topics.WRENCH_FRAME,
+                       t_ankle=rec.t_angles, ankle=rec.ankle)
     s = rec.subject
     custom = {
         'nmt.subject': {'name': s.name, 'mass_kg': s.mass_kg, 'height_m': s.height_m,
                         'body_weight_n': s.mass_kg * load_parameters().gravity,
-                        'source': s.source, 'model_file': 'subject.yaml'},
+                        'source': s.source, 'model_file': 'subject.yaml',
+                        'implied_mass_kg': rec.facts.get('momentum_balance', {}).get(
+                            'implied_mass_kg')},
         'nmt.source': rec.facts.get('sources', {}),
         'nmt.import': {k: v for k, v in rec.facts.items() if k != 'sources'},
     }
@@ -359,6 +411,9 @@ def summary(rec: LabRecording) -> dict:
             'wrench_rate_hz': round(f['wrench_rate_hz'], 3),
             'time_s': [float(rec.t_angles[0]), float(rec.t_angles[-1])],
             'subject_mass_kg': round(rec.subject.mass_kg, 3),
+            'implied_mass_kg': f.get('momentum_balance', {}).get('implied_mass_kg'),
+            'implied_mass_method': f.get('momentum_balance', {}).get('implied_mass_method'),
+            'step_off_s': f.get('momentum_balance', {}).get('step_off_s'),
             'peak_vertical_force_bw': round(float(rec.wrench[:, 1].max())
                                             / (rec.subject.mass_kg * 9.80665), 3),
             'contact_s': float(contact.sum() / f['wrench_rate_hz']),

@@ -3,16 +3,17 @@
 A map names, per leg (``r``, ``l``), the landmarks ``hip``, ``knee``, ``ankle``, ``heel``,
 ``toe`` and, for the trunk, ``hip`` and ``shoulder``; a landmark is one marker or a list of
 markers (their midpoint: e.g. the two hip joint centres). The segment lines are fixed
-(``nmt_ros.lab.sagittal``): foot heel -> toe, shank ankle -> knee, thigh knee -> hip, HAT
+(``nmt_ros.study.sagittal``): foot heel -> toe, shank ankle -> knee, thigh knee -> hip, HAT
 hips -> shoulders. Each line's sagittal direction angle in the default pose (``zero_deg``,
 degrees) makes the README zero, and ``ankle_offset_m`` (the ankle joint centre minus the ankle
 landmark in the shank frame, m) places the ankle centre used for the foot's centre of mass.
-Both come from a model that carries the markers (:func:`calibrate`: the markers and joint
-centres in the model's default pose), so a subject's own ``.osim`` recalibrates them.
+Both come from a model that carries the markers (``nmt_ros.study.marker_calibration``: the
+markers and joint centres in the model's default pose), so a subject's own ``.osim``
+recalibrates them. This module reads and writes the format only.
 
 The shipped default, ``data/marker_map_opencap.yaml``, is for the OpenCap / Rajagopal (2015)
 marker names of ``data/real/opencap_dropjump/MarkerData/DJ1.trc``, calibrated on that
-subject's ``Models/final.osim``; regenerate with ``python -m nmt_ros.lab.marker_map``.
+subject's ``Models/final.osim``; regenerate with ``python -m nmt_ros.study.marker_calibration``.
 
 Format::
 
@@ -25,15 +26,10 @@ Format::
 """
 from __future__ import annotations
 
-import argparse
-import copy
 from pathlib import Path
-import sys
 
 import numpy as np
 import yaml
-
-from nmt_ros.lab.sagittal import SagittalFrame, direction_angle
 
 DEFAULT_MAP = Path(__file__).resolve().parent / 'data' / 'marker_map_opencap.yaml'
 FORMAT = 'nmt_ros marker map v1'
@@ -41,7 +37,6 @@ SIDES = ('r', 'l')
 LEG_LANDMARKS = ('hip', 'knee', 'ankle', 'heel', 'toe')
 #: Segment line of each leg segment: (from landmark, to landmark).
 LEG_LINES = {'foot': ('heel', 'toe'), 'shank': ('ankle', 'knee'), 'thigh': ('knee', 'hip')}
-OPENSIM_FRAME = SagittalFrame('+x', '+y')
 
 
 def _names(entry: object) -> list[str]:
@@ -80,56 +75,10 @@ def landmark(m: dict, side: str | None, name: str, position: dict[str, np.ndarra
     return np.mean([position[n] for n in _names(entry)], axis=0)
 
 
-def calibrate(m: dict, measures: dict) -> dict:
-    """A copy of map ``m`` with ``zero_deg`` and ``ankle_offset_m`` from a model's default pose
-    (``python -m nmt_ros.osim.subject measure`` output: ``markers_m``, ``landmarks_m``)."""
-    markers = {k: np.asarray(v, dtype=float) for k, v in measures['markers_m'].items()}
-    missing = [n for n in markers_used(m) if n not in markers]
-    if missing:
-        raise ValueError(f'{measures.get("model", "model")} has no marker(s) '
-                         f'{", ".join(missing)} of the marker map: cannot calibrate it')
-    out = copy.deepcopy(m)
-    proj = OPENSIM_FRAME.project
-    zero: dict = {}
-    offset: dict = {}
-    for side in SIDES:
-        p = {k: proj(landmark(m, side, k, markers)) for k in LEG_LANDMARKS}
-        zero[side] = {seg: float(np.rad2deg(direction_angle(p[a], p[b])))
-                      for seg, (a, b) in LEG_LINES.items()}
-        ankle_centre = proj(np.asarray(measures['landmarks_m'][f'{side}_ankle']))
-        offset[side] = [float(v) for v in ankle_centre - p['ankle']]
-    hip = proj(landmark(m, None, 'hip', markers))
-    shoulder = proj(landmark(m, None, 'shoulder', markers))
-    zero['hat'] = float(np.rad2deg(direction_angle(hip, shoulder)))
-    out['zero_deg'] = zero
-    out['ankle_offset_m'] = offset
-    out['calibrated_on'] = str(measures.get('model', ''))
-    out.pop('source_file', None)
-    return out
-
-
 def write_marker_map(path: str | Path, m: dict) -> Path:
     path = Path(path)
     doc = {k: v for k, v in m.items() if k != 'source_file'}
     with open(path, 'w') as f:
-        f.write('# nmt_ros marker map (nmt_ros/lab/marker_map.py explains every key)\n')
+        f.write('# nmt_ros marker map (nmt_ros/io/marker_map.py explains every key)\n')
         yaml.safe_dump(doc, f, sort_keys=False, width=99)
     return path
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Recalibrate a map on a model: ``python -m nmt_ros.lab.marker_map --model M.osim``."""
-    from nmt_ros.lab.opensim_process import measure_model
-    parser = argparse.ArgumentParser(prog='python -m nmt_ros.lab.marker_map')
-    parser.add_argument('--model', required=True, help='.osim carrying the markers')
-    parser.add_argument('--map', default=None, help='map to calibrate (default: shipped)')
-    parser.add_argument('--out', default=None, help='output (default: overwrite --map)')
-    args = parser.parse_args(argv)
-    m = load_marker_map(args.map)
-    out = calibrate(m, measure_model(args.model))
-    write_marker_map(args.out or args.map or DEFAULT_MAP, out)
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())
