@@ -35,6 +35,7 @@ from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
 from nmt_ros.records import TRIAL_EPOCH_NS, Observations, TrialEstimates, Truth
+from nmt_ros.tracking.conditioning import nominal_rate
 
 #: Names of the ankle-position JointState: the model's coordinates r1, r2 (m).
 ANKLE_NAMES = ('r1', 'r2')
@@ -161,6 +162,20 @@ def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> O
                         t_wrench=(wr.stamp_ns - epoch_ns) * 1e-9, wrench=wrench,
                         frame_id=wr.frame_id, info={'epoch_ns': epoch_ns},
                         t_ankle=t_ankle, ankle=ankle)
+
+
+def observation_rates(path: str | os.PathLike) -> tuple[float, float]:
+    """(segment-angle rate, force-plate rate) [Hz] of a bag, from its header stamps (the
+    median sample interval of each observation topic, rounded to 1 mHz: ``nominal_rate``)."""
+    rates = []
+    for topic in (topics.MOCAP_SEGMENT_ANGLES, topics.FORCE_PLATE_WRENCH):
+        stamps = np.sort(read_arrays(Path(path), topic).stamp_ns)
+        dt = np.diff(stamps)
+        dt = dt[dt > 0]
+        if dt.size == 0:
+            raise ValueError(f'{path}: {topic} has fewer than two distinct stamps')
+        rates.append(nominal_rate(1e9 / float(np.median(dt))))
+    return rates[0], rates[1]
 
 
 def has_truth(path: str | os.PathLike) -> bool:

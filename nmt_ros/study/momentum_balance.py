@@ -43,6 +43,7 @@ class BalanceSettings:
     """Thresholds of the momentum-balance checks (SI units)."""
 
     contact_threshold_n: float = 20.0   # a plate is loaded above this vertical force [N]
+    min_phase_s: float = 0.05           # shorter loaded phases / unloaded gaps are noise [s]
     cutoff_hz: float = 10.0             # COM and force low-pass before comparing [Hz]
     min_flight_s: float = 0.08          # shortest unloaded stretch taken as a flight [s]
     flight_margin_s: float = 0.02       # flight samples this close to a contact are not fitted
@@ -75,6 +76,7 @@ class MomentumBalance:
     unmeasured_support_s: tuple[float, float] | None
     estimates: list[MassEstimate]
     gravity: float
+    edge_s: float = 0.1            # the filter's edge: residuals this close to an end ignored
 
     @property
     def implied(self) -> MassEstimate | None:
@@ -105,7 +107,10 @@ class MomentumBalance:
                               for k, v in e.detail.items()}} for e in self.estimates],
         }
         if mass_kg is not None:
-            after = self.t >= (self.step_off_s if self.step_off_s is not None else self.t[0])
+            # after the step-off, away from the recording's end (the filter's edge)
+            after = ((self.t >= (self.step_off_s if self.step_off_s is not None
+                                 else self.t[0] + self.edge_s))
+                     & (self.t <= self.t[-1] - self.edge_s))
             r = self.residual(mass_kg)[after]
             out['model_mass_kg'] = round(float(mass_kg), 2)
             out['residual_rms_g_after_step_off'] = round(
@@ -128,9 +133,10 @@ def com_trajectory(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
 
 
 def loaded_phases(t: np.ndarray, fy: np.ndarray, threshold_n: float,
-                  ) -> list[tuple[float, float]]:
+                  min_phase_s: float = 0.05) -> list[tuple[float, float]]:
     """Intervals [s] where the vertical force fy [n] (N) exceeds ``threshold_n``; ends at the
-    (linearly interpolated) crossings, or at the first/last sample."""
+    (linearly interpolated) crossings, or at the first/last sample. Noise: loaded phases
+    shorter than ``min_phase_s`` are dropped, then unloaded gaps shorter than it bridged."""
     t, fy = np.asarray(t, dtype=float), np.asarray(fy, dtype=float)
     above = fy > threshold_n
     if not above.any():
@@ -143,7 +149,15 @@ def loaded_phases(t: np.ndarray, fy: np.ndarray, threshold_n: float,
 
     starts = ([float(t[0])] if above[0] else []) + [crossing(i) for i in edges if not above[i]]
     ends = [crossing(i) for i in edges if above[i]] + ([float(t[-1])] if above[-1] else [])
-    return list(zip(starts, ends))
+    merged: list[list[float]] = []
+    for a, b in zip(starts, ends):
+        if b - a < min_phase_s:
+            continue                                   # a blip of noise
+        if merged and a - merged[-1][1] < min_phase_s:
+            merged[-1][1] = b                          # a dip of noise inside a contact
+        else:
+            merged.append([a, b])
+    return [(a, b) for a, b in merged]
 
 
 def fit_flight(t: np.ndarray, y: np.ndarray, gravity: float,
@@ -226,7 +240,7 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
     cut_w, _ = cutoff_for_rate(min(st.cutoff_hz, float(cut_k)), rate_w)
     acc = SmoothSignal(t, com[:, 1:2], rate_k, cut_k)(t, 2)[:, 0]
     force = SmoothSignal(t_w, fy[:, None], rate_w, cut_w)(np.clip(t, t_w[0], t_w[-1]))[:, 0]
-    contacts = loaded_phases(t_w, fy, st.contact_threshold_n)
+    contacts = loaded_phases(t_w, fy, st.contact_threshold_n, st.min_phase_s)
 
     # Unmeasured support: the leading unloaded stretch in which the COM does not fall freely.
     step_off = support = None
@@ -282,4 +296,4 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
                     'contact_s': to - td, 'flight_fit_rms_m': max(fit_b[1], fit_a[1])}))
     return MomentumBalance(t=t, com=com, com_acc_y=acc, force_y=force, contacts=contacts,
                            step_off_s=step_off, unmeasured_support_s=support,
-                           estimates=estimates, gravity=gravity)
+                           estimates=estimates, gravity=gravity, edge_s=1.0 / float(cut_k))
