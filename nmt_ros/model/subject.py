@@ -229,22 +229,35 @@ def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
     return subject, scale
 
 
-def load_subject_parameters(bag_dir: str | os.PathLike | None) -> JumperParameters:
-    """The model parameters of a bag: its ``subject.yaml`` applied, or the jumper's."""
+def subject_file(path: str | os.PathLike | None) -> Path | None:
+    """The subject file of ``path``: a subject YAML itself, or the ``subject.yaml`` of a bag
+    folder (or beside a bag's .mcap file); None when there is none."""
+    if path is None or str(path) == '':
+        return None
+    p = Path(path)
+    if p.suffix == '.yaml':
+        if not p.is_file():
+            raise ValueError(f'{p}: no such subject file')
+        return p
+    p = p / SUBJECT_FILE if p.is_dir() else p.parent / SUBJECT_FILE
+    return p if p.is_file() else None
+
+
+def load_subject_parameters(path: str | os.PathLike | None) -> JumperParameters:
+    """The model parameters of a bag or subject file: its subject applied, or the jumper's."""
     params = load_parameters()
-    if bag_dir is None:
+    found = subject_file(path)
+    if found is None:
         return params
-    path = Path(bag_dir)
-    path = path / SUBJECT_FILE if path.is_dir() else path.parent / SUBJECT_FILE
-    if not path.exists():
-        return params
-    _, scale = read_subject(path)
+    _, scale = read_subject(found)
     return scale_parameters(params, scale)
 
 
-def load_subject_model(bag_dir: str | os.PathLike | None) -> object:
-    """The :class:`JumperModel` of a bag (its subject's, or the shipped jumper)."""
+def load_subject_model(path: str | os.PathLike | None) -> object:
+    """The :class:`JumperModel` of a bag (folder or .mcap) or of a subject YAML: its
+    subject's, or the shipped jumper (the same object as ``default_model()``) when there is
+    none."""
     from nmt_ros.model.jumper import JumperModel, default_model
-    if bag_dir is None or not (Path(bag_dir) / SUBJECT_FILE).exists():
+    if subject_file(path) is None:
         return default_model()
-    return JumperModel(load_subject_parameters(bag_dir))
+    return JumperModel(load_subject_parameters(path))
