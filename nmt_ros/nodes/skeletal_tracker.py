@@ -104,10 +104,9 @@ class SkeletalTrackerNode(TrackerNode):
                                low=1.0, high=10000.0)
         self.wrench_rate_hz = p('wrench_rate_hz', 1080.0, 'nominal force-plate rate [Hz]; '
                                 'the estimates are at these instants', low=1.0, high=100000.0)
-        self.substeps = p('substeps', 1, 'RK4 steps per force sample (the batch default, 2, '
-                          'costs twice the CPU for < 0.5 % of peak torque)', low=1, high=64)
-        self.max_step_s = p('max_step_s', 1.0 / 1080.0, 'longest RK4 step [s]: slower force '
-                            'plates get more substeps (11 at 100 Hz)', low=1e-6, high=0.1)
+        self.substeps = p('substeps', 1, 'RK4 steps per force sample at 1080 Hz (the batch '
+                          'default, 2, costs twice the CPU for < 0.5 % of peak torque); slower '
+                          'force plates get proportionally more (11 at 100 Hz)', low=1, high=64)
         self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
                               "by nmt import-lab; '' = the shipped jumper)")
         self.bias_rate = p('bias_rate', SKTSettings().bias_rate, 'moment-bias estimator rate '
@@ -128,7 +127,7 @@ class SkeletalTrackerNode(TrackerNode):
         self.poll_period_s = p('poll_period_s', 0.01, 'and at least this often [s]', low=0.001,
                                high=1.0)
         self.settings = SKTSettings().with_(
-            substeps=self.substeps, max_step_s=self.max_step_s, bias_rate=self.bias_rate,
+            substeps=self.substeps, bias_rate=self.bias_rate,
             max_angle_error_deg=self.max_angle_error_deg,
             max_force_error_bw=self.max_force_error_bw)
         self.conditioning = ConditioningSettings(
@@ -145,8 +144,7 @@ class SkeletalTrackerNode(TrackerNode):
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
-            'bias_rate': self.bias_rate, 'max_step_s': self.max_step_s,
-            'subject_file': self.subject_file}
+            'bias_rate': self.bias_rate, 'subject_file': self.subject_file}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)
