@@ -22,7 +22,7 @@ from scipy.signal import butter, filtfilt
 from nmt_ros.io.bags import bag_info, read_arrays
 from nmt_ros.io.opensim_files import read_table
 from nmt_ros.io.trial_bag import read_observations, write_trial_bag
-from nmt_ros.model.integrate import steps_per_sample
+from nmt_ros.model.simulation import steps_per_sample
 from nmt_ros.records import Observations
 from nmt_ros.study.momentum_balance import balance_from_com, loaded_phases
 from nmt_ros.tracking.conditioning import condition, cutoff_for_rate, nominal_rate
