@@ -10,7 +10,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(include=['nmt_ros', 'nmt_ros.*', 'msg_adapters', 'msg_adapters.*']),
-    package_data={'nmt_ros': ['model/data/*.yaml', 'model/data/*.json', 'tracking/data/*.yaml']},
+    package_data={'nmt_ros': ['model/data/*.yaml', 'model/data/*.json', 'tracking/data/*.yaml',
+                          'io/data/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

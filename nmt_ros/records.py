@@ -10,7 +10,7 @@ offset by ``TRIAL_EPOCH_NS``. Arrays carry their axis order in the comments ([n,
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -61,6 +61,25 @@ class Observations:
     wrench: np.ndarray     # [n2, 3] Fx, Fy (N), moment about the foot COM (N m)
     frame_id: str = 'foot_com'
     info: dict = field(default_factory=dict)
+    # Optional (lab recordings): the measured ankle centre, the model's (r1, r2), in the lab's
+    # sagittal frame (x forward, y up; y = 0 the floor the force plates are in).
+    t_ankle: np.ndarray | None = None   # [n3] s
+    ankle: np.ndarray | None = None     # [n3, 2] m
+
+    def after(self, t_start: float) -> Observations:
+        """The observations from ``t_start`` [s] on, on a trial time that starts there (the
+        samples' times minus t_start); ``info['t_offset_s']`` accumulates the shift."""
+        def cut(t: np.ndarray | None, x: np.ndarray | None) -> tuple:
+            if t is None:
+                return None, None
+            keep = np.asarray(t) >= t_start - 1e-9
+            return np.asarray(t)[keep] - t_start, np.asarray(x)[keep]
+        ta, a = cut(self.t_angles, self.angles)
+        tw, w = cut(self.t_wrench, self.wrench)
+        tk, k = cut(self.t_ankle, self.ankle)
+        info = {**self.info, 't_offset_s': float(self.info.get('t_offset_s', 0.0)) + t_start}
+        return Observations(t_angles=ta, angles=a, t_wrench=tw, wrench=w,
+                            frame_id=self.frame_id, info=info, t_ankle=tk, ankle=k)
 
 
 def truth_from_simulation(model: JumperModel, t: np.ndarray, x: np.ndarray, u: np.ndarray,
@@ -125,3 +144,13 @@ class TrialEstimates:
     ivd_t: np.ndarray       # [n] s
     ivd_tau: np.ndarray     # [n, 3] N m (ankle, knee, hip)
     muscles: MuscleEstimates | None = None
+
+    def shifted(self, dt: float) -> TrialEstimates:
+        """The same estimates with every time moved by ``dt`` [s] (e.g. back onto the
+        recording's time after tracking from a later start)."""
+        s1 = replace(self.stage1, t=self.stage1.t + dt, liftoff_s=self.stage1.liftoff_s + dt,
+                     events=[{**e, 't': e['t'] + dt} if 't' in e else e
+                             for e in self.stage1.events])
+        m = self.muscles
+        return TrialEstimates(stage1=s1, ivd_t=self.ivd_t + dt, ivd_tau=self.ivd_tau,
+                              muscles=None if m is None else replace(m, t=m.t + dt))

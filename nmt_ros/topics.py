@@ -10,6 +10,10 @@ from __future__ import annotations
 MOCAP_SEGMENT_ANGLES = '/mocap/segment_angles'   # JointState [foot, shank, thigh, hat], 120 Hz
 FORCE_PLATE_WRENCH = '/force_plate/wrench'       # WrenchStamped in WRENCH_FRAME, 1080 Hz
 OBSERVATIONS = (MOCAP_SEGMENT_ANGLES, FORCE_PLATE_WRENCH)
+# Optional, in bags of lab recordings (nmt import-lab): the measured ankle centre, JointState
+# [r1, r2] position (m) in the lab's sagittal frame. Batch tools use it to check the motion
+# against the measured forces and to start a trial in flight; the live graph ignores it.
+MOCAP_ANKLE_POSITION = '/mocap/ankle_position'
 
 #: ``header.frame_id`` of every planar ground wrench (observed, estimated, true): the foot's
 #: centre of mass, about which the moment is taken.

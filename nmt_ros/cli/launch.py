@@ -103,6 +103,20 @@ def _section(params: dict[str, Any], node: str) -> dict[str, Any]:
     return params.setdefault(node, {}).setdefault('ros__parameters', {})
 
 
+def bag_parameters(bag: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """What the trackers must know of a bag: its rates (from the header stamps) and its
+    subject (``BAG/subject.yaml`` when there is one, else the shipped jumper)."""
+    from nmt_ros.io.trial_bag import observation_rates
+    from nmt_ros.model.subject import subject_file
+
+    angle_rate, wrench_rate = observation_rates(bag)
+    subject = subject_file(bag)
+    subject = '' if subject is None else str(subject.resolve())
+    return {'skeletal_tracker': {'angle_rate_hz': angle_rate, 'wrench_rate_hz': wrench_rate,
+                                 'subject_file': subject},
+            'muscle_tracker': {'input_rate_hz': wrench_rate, 'subject_file': subject}}
+
+
 def graph_parameters(base: Mapping[str, Any], *, bag: str | os.PathLike | None = None,
                      rate: float | None = None, record: str | os.PathLike | None = None,
                      publish_clock: bool = False) -> dict[str, Any]:
@@ -111,6 +125,10 @@ def graph_parameters(base: Mapping[str, Any], *, bag: str | os.PathLike | None =
     obs = _section(params, 'observation_publisher')
     if bag is not None:
         obs['bag'] = str(Path(bag).resolve())
+        for node, values in bag_parameters(bag).items():
+            section = _section(params, node)
+            for k, v in values.items():
+                section.setdefault(k, v)      # a parameter file's value wins
     if rate is not None:
         obs['rate'] = float(rate)
     if publish_clock:

@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'run': ('nmt_ros.cli.run_node', 'run one node'),
     'echo': ('nmt_ros.cli.echo', 'print messages of a topic (ros2 topic echo style)'),
     'bag': ('nmt_ros.cli.bag', 'bag tools: info, play, reindex'),
+    'import-lab': ('nmt_ros.cli.import_lab',
+                   'a lab recording (IK/GRF .mot, TRC, C3D) as an observation bag + subject'),
 }
 
 

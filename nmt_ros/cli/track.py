@@ -27,6 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--stage2-kr', type=float, default=None,
                         help='Stage 2 effort weight kR (default: stage2.yaml, the paper\'s 1000; '
                         'lower tracks the Stage-1 torques more closely)')
+    parser.add_argument('--start', type=float, default=None, metavar='S',
+                        help='start tracking at S s of the recording (default: the step-off '
+                        'after an unmeasured support when one is detected, else the first '
+                        'sample)')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -44,9 +48,13 @@ def run(args: argparse.Namespace) -> int:
         shutil.rmtree(est)
     from nmt_ros.study.batch import track_bag
 
-    metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
-                        figures=not args.no_figures, say=_say, stage1=args.stage1,
-                        stage2_k_r=args.stage2_kr)
+    try:
+        metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
+                            figures=not args.no_figures, say=_say, stage1=args.stage1,
+                            stage2_k_r=args.stage2_kr, start_s=args.start)
+    except ValueError as err:
+        print(f'nmt track: error: {err}', file=sys.stderr)
+        return 2
     if metrics:
         from nmt_ros.study.report import summary_lines
 

@@ -4,6 +4,8 @@ Topics (INTERFACES.md); JointState fields follow their ROS meaning where one exi
   /mocap/segment_angles        JointState [foot, shank, thigh, hat], position (rad), 120 Hz
   /force_plate/wrench          WrenchStamped, force.x fore-aft, force.y vertical (N),
                                torque.z moment about the foot COM (N m), frame_id 'foot_com'
+  /mocap/ankle_position        JointState [r1, r2], position (m): the measured ankle centre
+                               (optional; lab recordings)
   /truth/segment_angles        JointState, position + velocity, 1080 Hz
   /truth/generalized_coordinates  JointState [th1..th4, r1, r2], position + velocity
   /truth/joint_torques         JointState [ankle, knee, hip]: position/velocity = OpenSim
@@ -33,6 +35,10 @@ from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
 from nmt_ros.records import TRIAL_EPOCH_NS, Observations, TrialEstimates, Truth
+from nmt_ros.tracking.conditioning import nominal_rate
+
+#: Names of the ankle-position JointState: the model's coordinates r1, r2 (m).
+ANKLE_NAMES = ('r1', 'r2')
 
 
 def to_stamps_ns(t: np.ndarray, epoch_ns: int = TRIAL_EPOCH_NS) -> np.ndarray:
@@ -58,6 +64,10 @@ def trial_messages(obs: Observations, truth: Truth | None = None,
                 joint_states_from_arrays(sa, SEGMENTS, position=obs.angles)))
     f, tq = _wrench_arrays(obs.wrench)
     out.append((topics.FORCE_PLATE_WRENCH, sw, wrenches_from_arrays(sw, obs.frame_id, f, tq)))
+    if obs.ankle is not None:
+        sk = to_stamps_ns(obs.t_ankle, epoch_ns)
+        out.append((topics.MOCAP_ANKLE_POSITION, sk,
+                    joint_states_from_arrays(sk, ANKLE_NAMES, position=obs.ankle)))
     if truth is not None:
         from nmt_ros.model.jumper import default_model
         model = default_model()
@@ -143,9 +153,29 @@ def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> O
                                          min(ang.stamp_ns[0], wr.stamp_ns[0])))
     angles = np.column_stack([ang.column(n) for n in SEGMENTS])
     wrench = np.column_stack([wr.force[:, 0], wr.force[:, 1], wr.torque[:, 2]])
+    t_ankle = ankle = None
+    if topics.MOCAP_ANKLE_POSITION in {t.name for t in bag_info(path).topics}:
+        an = read_arrays(path, topics.MOCAP_ANKLE_POSITION)
+        t_ankle = (an.stamp_ns - epoch_ns) * 1e-9
+        ankle = np.column_stack([an.column(n) for n in ANKLE_NAMES])
     return Observations(t_angles=(ang.stamp_ns - epoch_ns) * 1e-9, angles=angles,
                         t_wrench=(wr.stamp_ns - epoch_ns) * 1e-9, wrench=wrench,
-                        frame_id=wr.frame_id, info={'epoch_ns': epoch_ns})
+                        frame_id=wr.frame_id, info={'epoch_ns': epoch_ns},
+                        t_ankle=t_ankle, ankle=ankle)
+
+
+def observation_rates(path: str | os.PathLike) -> tuple[float, float]:
+    """(segment-angle rate, force-plate rate) [Hz] of a bag, from its header stamps (the
+    median sample interval of each observation topic, rounded to 1 mHz: ``nominal_rate``)."""
+    rates = []
+    for topic in (topics.MOCAP_SEGMENT_ANGLES, topics.FORCE_PLATE_WRENCH):
+        stamps = np.sort(read_arrays(Path(path), topic).stamp_ns)
+        dt = np.diff(stamps)
+        dt = dt[dt > 0]
+        if dt.size == 0:
+            raise ValueError(f'{path}: {topic} has fewer than two distinct stamps')
+        rates.append(nominal_rate(1e9 / float(np.median(dt))))
+    return rates[0], rates[1]
 
 
 def has_truth(path: str | os.PathLike) -> bool:

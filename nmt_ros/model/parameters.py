@@ -165,3 +165,39 @@ def load_parameters(path: str | Path | None = None, **overrides: float) -> Jumpe
     return JumperParameters(
         gravity=float(d['gravity']['value']), segments=segs, contact=contact,
         passive=passive, muscles=muscles, source_file=path)
+
+
+def parameters_data(params: JumperParameters) -> dict:
+    """The model data file's content for ``params`` (e.g. a subject-scaled jumper): the file
+    ``params`` came from, with every number :func:`load_parameters` reads replaced by the
+    record's (so ``load_parameters`` of it gives ``params`` back; the sources are kept)."""
+    with open(params.source_file) as f:
+        d = yaml.safe_load(f)
+    for name, s in params.segments.items():
+        seg = d['segments'][name]
+        seg['mass'] = float(s.mass)
+        seg['izz'] = float(s.izz)
+        seg['com'] = [float(v) for v in s.com]
+        if s.distal_joint is not None:
+            seg['distal_joint'] = [float(v) for v in s.distal_joint]
+    c, dc = params.contact, d['contact']
+    dc['points']['positions'] = [[float(v) for v in row] for row in c.points]
+    for key in ('k_y', 'delta', 'c_hc', 'damping_smoothing', 'k_x', 'c_x', 'mu', 'f_eps'):
+        dc[key] = float(getattr(c, key))
+    pj, dp = params.passive, d['passive_joints']
+    for i, j in enumerate(JOINT_COORDINATES):
+        dp[j]['k'] = [float(v) for v in pj.k[i]]
+        dp[j]['theta_lower'] = float(pj.theta_lower[i])
+        dp[j]['theta_upper'] = float(pj.theta_upper[i])
+    if not np.allclose(pj.damping, pj.damping[0]):
+        raise ValueError('the data file has one passive damping for all joints')
+    dp['damping'] = float(pj.damping[0] / int(dp['legs']))
+    m, dm = params.muscles, d['muscles']
+    per_leg = int(dm['legs']) * float(dm['strength_scale'])
+    dm['max_isometric_force_one_leg'] = [float(v) for v in m.f0 / per_leg]
+    dm['optimal_fiber_length'] = [float(v) for v in m.l_opt]
+    dm['tendon_slack_length'] = [float(v) for v in m.l_slack]
+    for name, path in m.paths.items():
+        d['paths'][name]['coefficients'] = [float(v) for v in path.coefficients]
+    d['gravity']['value'] = float(params.gravity)
+    return d

@@ -30,6 +30,10 @@ from nmt_ros.model.jumper import JumperModel
 Rhs = Callable[[float, np.ndarray], np.ndarray]
 Signal = Callable[[float], np.ndarray]
 
+#: Longest RK4 step of the simulations [s]: the step 4 substeps make at 1080 Hz; slower
+#: sample rates get more substeps per sample (``steps_per_sample``: 44 at 100 Hz).
+MAX_STEP_S = 0.25 / 1080.0
+
 
 def rk4_step(rhs: Rhs, t: float, y: np.ndarray, h: float) -> np.ndarray:
     """One classical Runge-Kutta step of ydot = rhs(t, y) from t [s] over h [s]."""
@@ -38,6 +42,18 @@ def rk4_step(rhs: Rhs, t: float, y: np.ndarray, h: float) -> np.ndarray:
     k3 = rhs(t + h / 2, y + h / 2 * k2)
     k4 = rhs(t + h, y + h * k3)
     return y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def steps_per_sample(rate_hz: float, max_step_s: float, at_least: int = 1) -> int:
+    """Fixed steps per sample interval 1/rate_hz [s] so that no step exceeds ``max_step_s``
+    [s] (and at least ``at_least``): what keeps an explicit integrator inside its stability
+    region whatever the data's rate (a 100 Hz force plate needs ten times the steps per
+    sample of a 1080 Hz one)."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f'sample rate {rate_hz} Hz must be positive')
+    if not max_step_s > 0:
+        raise ValueError(f'max_step_s {max_step_s} s must be positive')
+    return max(int(at_least), int(np.ceil(1.0 / (rate_hz * max_step_s) - 1e-9)))
 
 
 def rk4_integrate(rhs: Rhs, y0: np.ndarray, t0: float, h: float, n_steps: int,
@@ -94,7 +110,8 @@ def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
                          excitation: Signal, t_end: float, *, method: str = 'radau',
                          t_eval: np.ndarray | None = None, rtol: float = 1e-9,
                          atol: float = 1e-10, rate_hz: float = 1080.0, substeps: int = 4,
-                         liftoff_force: float = LIFTOFF_FORCE_N) -> Simulation:
+                         liftoff_force: float = LIFTOFF_FORCE_N,
+                         max_step_s: float = MAX_STEP_S) -> Simulation:
     """Eq. 1 + Eq. 8 from x_init = [q, qd, a] driven by ``excitation(t) -> u[9]`` until t_end [s].
 
     ``method='radau'``: stiff implicit integration with the model's exact Jacobian, relative
@@ -103,12 +120,14 @@ def simulate_excitations(model: JumperModel, x_init: np.ndarray, x0: np.ndarray,
     ``substeps`` steps per sample, recorded at ``rate_hz`` up to the last whole sample before
     t_end; the excitation is evaluated at each step's start and held over the step (a
     zero-order hold on the integration grid, which suits piecewise-constant excitations);
-    lift-off by ``liftoff_time`` on the recorded forces. ``liftoff_force`` [N].
+    lift-off by ``liftoff_time`` on the recorded forces; at slow rates more substeps, so
+    that no step exceeds ``max_step_s`` [s]. ``liftoff_force`` [N].
     """
     if method == 'radau':
         return _radau(model, x_init, x0, excitation, t_end, t_eval, rtol, atol, liftoff_force)
     if method == 'rk4':
-        return _rk4_held(model, x_init, x0, excitation, t_end, rate_hz, substeps, liftoff_force)
+        return _rk4_held(model, x_init, x0, excitation, t_end, rate_hz,
+                         steps_per_sample(rate_hz, max_step_s, substeps), liftoff_force)
     raise ValueError(f"method must be 'radau' or 'rk4', not {method!r}")
 
 
@@ -162,19 +181,22 @@ def _rk4_held(model: JumperModel, x_init: np.ndarray, x0: np.ndarray, excitation
 def simulate_torques(model: JumperModel, q0: np.ndarray, qd0: np.ndarray, x0: np.ndarray,
                      torque: Signal, t_end: float, *, rate_hz: float = 1080.0,
                      substeps: int = 4, stop: Callable[[float, np.ndarray], bool] | None = None,
-                     liftoff_force: float = LIFTOFF_FORCE_N) -> Simulation:
-    """Eq. 1 from (q0, qd0) driven by joint torques ``torque(t) -> tau[3]`` [N m] (RK4,
-    ``substeps`` steps per sample, recorded at ``rate_hz`` up to the last whole sample before
-    t_end [s]). Ends early, recorded, when ``stop(t, [q, qd])`` becomes true (success False,
-    message 'stopped')."""
+                     liftoff_force: float = LIFTOFF_FORCE_N, t0: float = 0.0,
+                     max_step_s: float = MAX_STEP_S) -> Simulation:
+    """Eq. 1 from (q0, qd0) at t0 [s] driven by joint torques ``torque(t) -> tau[3]`` [N m]
+    (RK4, ``substeps`` steps per sample, more at slow rates: no step above ``max_step_s``
+    [s]; recorded at ``rate_hz`` up to the last whole sample before t_end [s]). Ends early,
+    recorded, when ``stop(t, [q, qd])`` becomes true (success False, message 'stopped')."""
     fd = model.forward_dynamics
 
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
         return np.concatenate([y[6:], np.asarray(fd(y[:6], y[6:], torque(t), x0)).ravel()])
 
+    substeps = steps_per_sample(rate_hz, max_step_s, substeps)
     h = 1.0 / (rate_hz * substeps)
-    t, y, stopped = rk4_integrate(rhs, np.concatenate([q0, qd0]), 0.0, h,
-                                  _whole_samples(t_end, rate_hz) * substeps, substeps, stop=stop)
+    t, y, stopped = rk4_integrate(rhs, np.concatenate([q0, qd0]), t0, h,
+                                  _whole_samples(t_end - t0, rate_hz) * substeps, substeps,
+                                  stop=stop)
     s, = model.batch(model.contact_outputs, y[:, :6], y[:, 6:], x0)
     return Simulation(t=t, x=y, u=np.array([torque(ti) for ti in t]), s=s,
                       x0=np.asarray(x0, dtype=float),

@@ -25,8 +25,8 @@ import numpy as np
 from sensor_msgs.msg import JointState
 
 from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
-from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, MUSCLES
+from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample
 from nmt_ros.nodes.node_base import TrackerNode
 from nmt_ros.nodes.node_status import ERROR, WARN
@@ -61,6 +61,8 @@ class MuscleTrackerNode(TrackerNode):
                             "the batch default) or 'clip' (the paper's Eq. 9 clipped)")
         self.input_rate_hz = p('input_rate_hz', 1080.0, 'rate of the joint-torque samples '
                                '[Hz]', low=1.0, high=100000.0)
+        self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
+                              "by nmt import-lab; '' = the shipped jumper)")
         self.process_period_s = p('process_period_s', 0.005, 'queued samples are pushed to '
                                   'Stage 2 this often [s] (batching amortises the cost)',
                                   low=0.0005, high=1.0)
@@ -68,9 +70,10 @@ class MuscleTrackerNode(TrackerNode):
         self.status.settings = {'window_length_s': self.window_length_s,
                                 'window_stride_s': self.window_stride_s,
                                 'saturation': self.saturation,
-                                'input_rate_hz': self.input_rate_hz}
+                                'input_rate_hz': self.input_rate_hz,
+                                'subject_file': self.subject_file}
 
-        self.model = default_model()
+        self.model = load_subject_model(self.subject_file or None)
         self.tracker = NeuromuscularTracker(
             self.model, load_stage2_settings(saturation=self.saturation))
         self.stream = Stage2Stream(self.model, self.tracker, self.window_length_s, stride,

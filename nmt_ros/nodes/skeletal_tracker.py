@@ -42,8 +42,8 @@ from sensor_msgs.msg import JointState
 
 from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
 from msg_adapters.planar import from_planar_wrench, planar_wrenches_from_arrays
-from nmt_ros.model.jumper import default_model
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
+from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample, TrialClock
 from nmt_ros.nodes.node_base import TrackerNode
 from nmt_ros.nodes.node_status import ERROR, OK, WARN
@@ -104,8 +104,11 @@ class SkeletalTrackerNode(TrackerNode):
                                low=1.0, high=10000.0)
         self.wrench_rate_hz = p('wrench_rate_hz', 1080.0, 'nominal force-plate rate [Hz]; '
                                 'the estimates are at these instants', low=1.0, high=100000.0)
-        self.substeps = p('substeps', 1, 'RK4 steps per force sample (the batch default, 2, '
-                          'costs twice the CPU for < 0.5 % of peak torque)', low=1, high=64)
+        self.substeps = p('substeps', 1, 'RK4 steps per force sample at 1080 Hz (the batch '
+                          'default, 2, costs twice the CPU for < 0.5 % of peak torque); slower '
+                          'force plates get proportionally more (11 at 100 Hz)', low=1, high=64)
+        self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
+                              "by nmt import-lab; '' = the shipped jumper)")
         self.bias_rate = p('bias_rate', SKTSettings().bias_rate, 'moment-bias estimator rate '
                            '[1/s] (0 = off)', low=0.0, high=1000.0)
         self.max_angle_error_deg = p('max_angle_error_deg', SKTSettings().max_angle_error_deg,
@@ -141,11 +144,11 @@ class SkeletalTrackerNode(TrackerNode):
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
-            'bias_rate': self.bias_rate}
+            'bias_rate': self.bias_rate, 'subject_file': self.subject_file}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)
-        self.model = default_model()
+        self.model = load_subject_model(self.subject_file or None)
         self.stream = Stage1Stream(self.model, self.settings, self.conditioning,
                                    angle_rate_hz=self.angle_rate_hz,
                                    wrench_rate_hz=self.wrench_rate_hz)

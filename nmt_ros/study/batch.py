@@ -9,6 +9,12 @@ simulation (``nmt_ros.study.pipeline.run_nmt``). Writes ``DIR/estimates/`` (a ba
 files, ``nmt_ros.study.opensim_results``) and, when the bag carries ``/truth/*``,
 ``DIR/metrics.json`` (``stage1_method`` says which Stage 1; its ``skt`` block holds the
 Stage-1 results either way) and the paper-style figures.
+
+Any bag: the model is the bag's subject (``BAG/subject.yaml``, written by ``nmt import-lab``;
+the shipped jumper when there is none); the rates are the observations' own (the output grid
+is the force plate's samples); tracking starts where ``nmt_ros.study.trial_start.plan_start``
+says (a given ``start_s``, the step-off after an unmeasured support, or the first sample), and
+the estimates keep the recording's time (stamped like the observations).
 """
 from __future__ import annotations
 
@@ -16,38 +22,96 @@ from collections.abc import Callable
 import json
 from pathlib import Path
 
+import numpy as np
+
 from nmt_ros.io.bags import bag_info
 from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
-from nmt_ros.model.jumper import default_model
+from nmt_ros.model.subject import load_subject_model, subject_file
 from nmt_ros.study.metrics import compute_metrics
 from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
+from nmt_ros.study.trial_start import plan_start
+from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
 from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
+from nmt_ros.tracking.skeletal_tracker import SKTSettings
+
+#: Stage 1's foot-angle weight in flight for trials that start in flight (Table 1's shank
+#: weight: in the air the foot is a segment like the others; see
+#: ``SKTSettings.flight_foot_weight``).
+FLIGHT_FOOT_WEIGHT = 0.7
 
 
 def _quiet(_msg: str) -> None:
     """Default progress sink: say nothing."""
 
 
+def _rate(t: np.ndarray, what: str, bag: Path) -> float:
+    try:
+        return nominal_rate(sample_rate(t))
+    except ValueError as err:
+        raise ValueError(f'{bag}: {what}: {err}') from None
+
+
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
               figures: bool = True, say: Callable[[str], None] = _quiet,
-              stage1: str = 'optimal_muscle', stage2_k_r: float | None = None) -> dict | None:
+              stage1: str = 'optimal_muscle', stage2_k_r: float | None = None,
+              start_s: float | None = None) -> dict | None:
     """Run the NMT on ``bag``, write the outputs under ``out``; returns the metrics (None
     when the bag has no truth). ``window``: Stage 2 window length H [s] (windowed mode);
-    ``stage2_k_r``: Stage 2 effort weight kR (None: stage2.yaml's); ``say``: progress."""
-    model = default_model()
+    ``stage2_k_r``: Stage 2 effort weight kR (None: stage2.yaml's); ``start_s``: start
+    tracking there (recording time, s; None: ``plan_start``'s choice); ``say``: progress."""
+    bag = Path(bag)
+    model = load_subject_model(bag)
+    subject = subject_file(bag)
+    who = f'the subject of {subject}' if subject is not None else 'the shipped jumper'
+    say(f'model: {who} ({model.p.total_mass:.2f} kg)')
     obs = read_observations(bag)
-    say(f'{bag}: {obs.t_angles.size} angle samples, {obs.t_wrench.size} wrench samples, '
-        f'{obs.t_wrench[-1]:.3f} s')
+    rate_a = _rate(obs.t_angles, 'segment angles', bag)
+    rate_w = _rate(obs.t_wrench, 'force plate', bag)
+    say(f'{bag}: {obs.t_angles.size} angle samples at {rate_a:.6g} Hz, {obs.t_wrench.size} '
+        f'wrench samples at {rate_w:.6g} Hz, {obs.t_wrench[0]:.3f}..{obs.t_wrench[-1]:.3f} s')
+    start = plan_start(model, obs, start_s)
+    if start.balance is not None:
+        b = start.balance
+        if b.get('implied_mass_kg') is not None:
+            say(f'momentum balance: the forces imply {b["implied_mass_kg"]:.1f} kg '
+                f'({b["implied_mass_method"]}), the model has {b["model_mass_kg"]:.1f} kg')
+        if b.get('unmeasured_support_s') is not None:
+            a0, a1 = b['unmeasured_support_s']
+            say(f'unmeasured support {a0:.3f}..{a1:.3f} s (motion and forces disagree: the '
+                f'plates read no load while the COM does not fall); step-off {a1:.3f} s')
+    say(f'tracking starts at {start.t_s:.4f} s ({start.reason})')
+    for note in start.notes:
+        say(note)
+    skt = SKTSettings()
+    if start.in_flight:          # the foot is not held by the ground until the landing
+        skt = skt.with_(flight_foot_weight=FLIGHT_FOOT_WEIGHT)
+        say(f'Stage 1 in flight: foot angle weight {FLIGHT_FOOT_WEIGHT:g} while unloaded '
+            f'(Table 1: {skt.weights[0]:g} on the ground)')
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
-                                          window_length_s=window, stage2_k_r=stage2_k_r),
-                  progress=say)
+                                          window_length_s=window, stage2_k_r=stage2_k_r,
+                                          rate_hz=rate_w, skt=skt),
+                  progress=say, start=start.state, t_start_s=start.t_s)
     out.mkdir(parents=True, exist_ok=True)
-    write_estimates_bag(out / 'estimates', model, run.estimates(), obs.info['epoch_ns'])
+    estimates = run.estimates().shifted(start.t_s)       # back on the recording's time
+    facts = {'nmt.track': {'start_s': start.t_s, 'start_reason': start.reason,
+                           'start_in_flight': start.in_flight, 'notes': start.notes,
+                           'conditioning': list(run.cond.notes), 'rate_hz': rate_w,
+                           'model_mass_kg': model.p.total_mass,
+                           'stage1_status': run.skt.status,
+                           'stage1_events': estimates.stage1.events}}
+    if start.balance is not None:
+        facts['nmt.momentum_balance'] = start.balance
+    write_estimates_bag(out / 'estimates', model, estimates, obs.info['epoch_ns'],
+                        custom_data=facts)
     say(f'estimates: {out / "estimates"}')
-    write_opensim_estimates(out / 'opensim', model, run)
-    say(f'OpenSim files: {out / "opensim"} (model: nmt export-osim)')
+    write_opensim_estimates(out / 'opensim', model, run, t_offset_s=start.t_s)
+    say(f'OpenSim files: {out / "opensim"} (model: nmt export-osim'
+        f'{"" if subject is None else f" --subject {subject}"})')
     if not has_truth(bag):
+        return None
+    if start.t_s != 0.0:
+        say(f'metrics skipped: tracking started at {start.t_s:.3f} s, the truth at 0')
         return None
     truth = read_truth(bag)
     po = None

@@ -103,26 +103,29 @@ def write_opensim_truth(folder: str | Path, model: JumperModel, truth: Truth,
     return write_motion(folder, model, 'truth', truth.t, truth.q, truth.qd, truth.a, truth.x0)
 
 
-def write_opensim_estimates(folder: str | Path, model: JumperModel, run: object) -> list[Path]:
-    """An NMT run's estimates as OpenSim files (module docstring); returns their paths."""
+def write_opensim_estimates(folder: str | Path, model: JumperModel, run: object,
+                            t_offset_s: float = 0.0) -> list[Path]:
+    """An NMT run's estimates as OpenSim files (module docstring); returns their paths.
+    ``t_offset_s`` [s] is added to every time (the run's trial time 0 on the recording)."""
     folder = Path(folder)
     skt, s2, sim = run.skt, run.stage2, run.nmt_sim
-    out = write_motion(folder, model, 'stage1', skt.t, skt.q, skt.qd, x0=skt.x0)
-    out.append(write_table(folder / 'stage1_torques.sto', skt.t,
+    dt = float(t_offset_s)
+    out = write_motion(folder, model, 'stage1', skt.t + dt, skt.q, skt.qd, x0=skt.x0)
+    out.append(write_table(folder / 'stage1_torques.sto', skt.t + dt,
                            [f'{c}_moment' for c in COORDINATES[3:]], skt.tau,
                            name='stage1_torques'))
     if s2 is None:
         return out
     names = list(model.p.muscles.names)
     k = np.searchsorted(skt.t, s2.t - 1e-9)
-    states = write_motion(folder, model, 'stage2', s2.t, skt.q[k], skt.qd[k], s2.a)
+    states = write_motion(folder, model, 'stage2', s2.t + dt, skt.q[k], skt.qd[k], s2.a)
     out.append(states[1])
     states[0].unlink()                  # its coordinates are Stage 1's (stage1.sto)
-    out.append(write_table(folder / 'stage2_muscle_forces.sto', s2.t, names, s2.f,
+    out.append(write_table(folder / 'stage2_muscle_forces.sto', s2.t + dt, names, s2.f,
                            name='stage2_muscle_forces'))
-    out.append(write_table(folder / 'stage2_controls.sto', s2.t,
+    out.append(write_table(folder / 'stage2_controls.sto', s2.t + dt,
                            [f'/forceset/{m}' for m in names], s2.u, name='stage2_controls'))
     if sim is not None:
-        out += write_motion(folder, model, 'nmt', sim.t, sim.x[:, :6], sim.x[:, 6:12],
+        out += write_motion(folder, model, 'nmt', sim.t + dt, sim.x[:, :6], sim.x[:, 6:12],
                             sim.x[:, 12:], sim.x0)
     return out

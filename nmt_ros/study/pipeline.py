@@ -22,7 +22,12 @@ from nmt_ros.tracking.neuromuscular_tracker import (
     Stage2Result,
     load_stage2_settings,
 )
-from nmt_ros.tracking.skeletal_tracker import SKTSettings, initial_state, reference_arrays
+from nmt_ros.tracking.skeletal_tracker import (
+    SKTSettings,
+    SKTState,
+    initial_state,
+    reference_arrays,
+)
 from nmt_ros.tracking.streaming import track_stage1
 
 STAGE1_METHODS = ('skt', 'optimal', 'optimal_muscle', 'mhe')
@@ -92,13 +97,25 @@ def simulate_stage2(model: JumperModel, stage2: Stage2Result, q0: np.ndarray, qd
 
 
 def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSettings(),
-            progress: callable | None = None) -> NMTRun:
-    """Stage 1, IVD, Stage 2 and the NMT simulation on ``obs``; CPU seconds per part."""
+            progress: callable | None = None, start: SKTState | None = None,
+            t_start_s: float = 0.0) -> NMTRun:
+    """Stage 1, IVD, Stage 2 and the NMT simulation on ``obs``; CPU seconds per part.
+
+    Tracking starts at ``t_start_s`` of the observations' time (their filter runs over the
+    whole recording), which is trial time 0 of every result; ``start``: the tracked model's
+    state there when known (a trial that starts in flight), else the static start from the
+    observations. Outputs are at k / ``settings.rate_hz``.
+    """
     say = progress or (lambda _msg: None)
     cpu: dict[str, float] = {}
     c = time.process_time()
     cond = condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, settings.conditioning)
+    if t_start_s:
+        cond = cond.shifted(t_start_s)
+        obs = obs.after(t_start_s)
     cpu['conditioning'] = time.process_time() - c
+    for note in cond.notes:
+        say(f'conditioning: {note}')
 
     if settings.stage1 == 'mhe':
         from nmt_ros.tracking.moving_horizon.estimator import estimate
@@ -113,7 +130,7 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
                 say(f'  {e.level} at {e.t:.3f} s: {e.message}')
     else:
         say('Stage 1: skeletal motion tracker')
-        skt = track_stage1(model, cond, settings.skt, settings.rate_hz)
+        skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
         cpu['stage1'] = skt.cpu_s + cpu['conditioning']
     if settings.stage1 in ('optimal', 'optimal_muscle') and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
@@ -140,14 +157,15 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     elif settings.stage1 not in STAGE1_METHODS:
         raise ValueError(f'stage1 must be one of {STAGE1_METHODS}, not {settings.stage1!r}')
     if settings.stage1 == 'mhe':
-        return _run_streamed(model, obs, settings, cond, skt, cpu, say)
+        return _run_streamed(model, obs, settings, cond, skt, cpu, say, start)
     if not skt.ok:
         say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
             f'{skt.events[0]["t"]:.3f} s')
 
     say('IVD baseline')
     c = time.process_time()
-    init = initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt)
+    init = (start if start is not None else
+            initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt))
     ivd = inverse_dynamics_baseline(model, cond, init, settings.rate_hz)
     ivd = simulate_open_loop(model, ivd, init, settings.rate_hz)
     cpu['ivd'] = time.process_time() - c
@@ -178,7 +196,7 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
 
 def _run_streamed(model: JumperModel, obs: Observations, settings: NMTSettings,
                   cond: ConditionedObservations, skt: SKTResult, cpu: dict,
-                  say: callable) -> NMTRun:
+                  say: callable, start: SKTState | None = None) -> NMTRun:
     """The streaming path (Stage 1 by the moving-horizon estimator): Stage 2 by the live
     receding-horizon stream over the whole record (every phase, flights included), the IVD
     baseline, and the NMT simulation only for a single push-off (``NMT_SIMULATION_MAX_S``)."""
@@ -186,7 +204,8 @@ def _run_streamed(model: JumperModel, obs: Observations, settings: NMTSettings,
 
     say('IVD baseline')
     c = time.process_time()
-    init = initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt)
+    init = (start if start is not None else
+            initial_state(model, reference_arrays(cond, np.array([0.0]))[0], settings.skt))
     ivd = inverse_dynamics_baseline(model, cond, init, settings.rate_hz)
     if obs.t_wrench[-1] <= NMT_SIMULATION_MAX_S:
         ivd = simulate_open_loop(model, ivd, init, settings.rate_hz)

@@ -10,6 +10,12 @@ beyond the instant being estimated: :class:`FixedLagConditioner` runs the SAME f
 window that ends ``lookahead_s`` after that instant (odd extension at both ends, like
 ``scipy.signal.filtfilt``'s default padding), which converges to the offline result as the
 look-ahead grows. The estimate for time t is final once data up to t + lookahead has arrived.
+
+Any sample rate: a cut-off is used as given only below ``max_cutoff_fraction`` (0.4) of the
+stream's Nyquist frequency; above it, it is lowered to that fraction (e.g. the paper's 50 Hz
+force filter on a 100 Hz force plate runs at 20 Hz) and the change is reported
+(:func:`cutoff_for_rate`, ``ConditionedObservations.notes``). A Butterworth filter with its
+cut-off at Nyquist is undefined, and near it no longer attenuates what it should.
 """
 from __future__ import annotations
 
@@ -29,6 +35,28 @@ class ConditioningSettings:
     order: int = 2                  # per pass (forward-backward doubles it)
     lookahead_s: float | None = None
     window_s: float = 0.5           # history kept by the live filter
+    # Cut-offs above this fraction of a stream's Nyquist frequency are lowered to it.
+    max_cutoff_fraction: float = 0.4
+
+
+def cutoff_for_rate(cutoff_hz: float | tuple[float, ...], rate_hz: float,
+                    max_fraction: float = 0.4, what: str = 'cut-off',
+                    ) -> tuple[float | tuple[float, ...], str | None]:
+    """The cut-off(s) [Hz] usable at ``rate_hz``: each one capped at ``max_fraction`` of the
+    Nyquist frequency; and a note saying what was lowered (None if nothing)."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f'sample rate {rate_hz} Hz must be positive')
+    if not 0 < max_fraction < 1:
+        raise ValueError(f'max_cutoff_fraction {max_fraction} must be in (0, 1)')
+    cap = max_fraction * rate_hz / 2
+    given = np.atleast_1d(np.asarray(cutoff_hz, dtype=float))
+    used = np.minimum(given, cap)
+    if np.array_equal(used, given):
+        return cutoff_hz, None
+    note = (f'{what} {np.unique(given[given > cap]).tolist()} Hz lowered to {cap:g} Hz '
+            f'({max_fraction:g} x the Nyquist frequency of {rate_hz:g} Hz)')
+    out = float(used[0]) if np.ndim(cutoff_hz) == 0 else tuple(float(v) for v in used)
+    return out, note
 
 
 def lowpass_zero_lag(y: np.ndarray, rate_hz: float, cutoff_hz: float | tuple[float, ...],
@@ -63,11 +91,26 @@ class SmoothSignal:
         if np.any(np.diff(t) <= 0):
             raise ValueError('sample times must be strictly increasing')
         self.t = t
+        self.rate_hz = float(rate_hz)
+        self.cutoff_hz = cutoff_hz
         self.raw = np.asarray(y, dtype=float)
         self.filtered = lowpass_zero_lag(self.raw, rate_hz, cutoff_hz, order)
         self._spline = make_interp_spline(t, self.filtered, k=degree, axis=0)
         self._d1 = self._spline.derivative(1)
         self._d2 = self._spline.derivative(2)
+
+    def shifted(self, dt: float) -> SmoothSignal:
+        """The same signal on a time axis moved by ``-dt`` [s] (what was at time dt is at 0):
+        the filtered samples and their spline are kept, so a later start of the trial sees
+        no filter edge there."""
+        out = SmoothSignal.__new__(SmoothSignal)
+        out.__dict__.update(self.__dict__)
+        out.t = self.t - dt
+        degree = self._spline.k
+        out._spline = make_interp_spline(out.t, self.filtered, k=degree, axis=0)
+        out._d1 = out._spline.derivative(1)
+        out._d2 = out._spline.derivative(2)
+        return out
 
     def __call__(self, t: np.ndarray | float, derivative: int = 0) -> np.ndarray:
         """Value (or 1st/2nd derivative) at ``t``, clamped to the sampled interval."""
@@ -81,6 +124,7 @@ class ConditionedObservations:
 
     angles: SmoothSignal   # [.., 4] rad
     wrench: SmoothSignal   # [.., 3] N, N, N m
+    notes: tuple[str, ...] = ()   # what the conditioning changed (lowered cut-offs)
 
     def sample(self, t: np.ndarray) -> dict[str, np.ndarray]:
         """theta, theta_dot, theta_ddot [n, 4] and s, s_dot [n, 3] at times t [n]."""
@@ -92,13 +136,20 @@ class ConditionedObservations:
     def t_end(self) -> float:
         return float(min(self.angles.t[-1], self.wrench.t[-1]))
 
+    def shifted(self, dt: float) -> ConditionedObservations:
+        """Both streams with time moved by ``-dt`` [s]: trial time 0 is the recording's dt,
+        filtered over the whole recording (``SmoothSignal.shifted``)."""
+        return ConditionedObservations(angles=self.angles.shifted(dt),
+                                       wrench=self.wrench.shifted(dt), notes=self.notes)
+
     def final_until(self) -> float:
         """Offline: every instant of the recording is final."""
         return self.t_end
 
 
-def _rate(t: np.ndarray) -> float:
-    dt = np.diff(t)
+def sample_rate(t: np.ndarray) -> float:
+    """Rate [Hz] of uniformly spaced sample times t [n] (s); ValueError if they are not."""
+    dt = np.diff(np.asarray(t, dtype=float))
     if dt.size == 0:
         raise ValueError('need at least two samples')
     mean = float(dt.mean())
@@ -106,6 +157,14 @@ def _rate(t: np.ndarray) -> float:
         raise ValueError('samples must be uniformly spaced (resample or fill gaps first); '
                          f'spacing ranges {dt.min():.6f}..{dt.max():.6f} s')
     return 1.0 / mean
+
+
+def nominal_rate(rate_hz: float) -> float:
+    """A measured sample rate [Hz] rounded to 1 mHz: header stamps are rounded to the
+    nanosecond, which moves a rate measured from them by up to ~1e-7 of itself (1080 Hz
+    reads 1079.99991 from one 925926 ns interval); the trackers' output grid k / rate must
+    fall on the recorded instants."""
+    return round(float(rate_hz), 3)
 
 
 def condition(t_angles: np.ndarray, angles: np.ndarray, t_wrench: np.ndarray,
@@ -119,11 +178,22 @@ def condition(t_angles: np.ndarray, angles: np.ndarray, t_wrench: np.ndarray,
                      if bad.size else 'in the time stamps')
             raise ValueError(f'{name} observations must be finite: NaN or inf at {where} '
                              f'({len(bad)} values); drop or fill them first')
+    return _conditioned(t_angles, angles, sample_rate(t_angles), t_wrench, wrench,
+                        sample_rate(t_wrench), settings)
+
+
+def _conditioned(t_angles: np.ndarray, angles: np.ndarray, angle_rate_hz: float,
+                 t_wrench: np.ndarray, wrench: np.ndarray, wrench_rate_hz: float,
+                 settings: ConditioningSettings) -> ConditionedObservations:
+    """Both streams filtered at cut-offs valid for their rates (:func:`cutoff_for_rate`)."""
+    cut_a, note_a = cutoff_for_rate(settings.angle_cutoff_hz, angle_rate_hz,
+                                    settings.max_cutoff_fraction, 'angle cut-off')
+    cut_w, note_w = cutoff_for_rate(settings.force_cutoff_hz, wrench_rate_hz,
+                                    settings.max_cutoff_fraction, 'force cut-off')
     return ConditionedObservations(
-        angles=SmoothSignal(t_angles, angles, _rate(t_angles), settings.angle_cutoff_hz,
-                            settings.order),
-        wrench=SmoothSignal(t_wrench, wrench, _rate(t_wrench), settings.force_cutoff_hz,
-                            settings.order))
+        angles=SmoothSignal(t_angles, angles, angle_rate_hz, cut_a, settings.order),
+        wrench=SmoothSignal(t_wrench, wrench, wrench_rate_hz, cut_w, settings.order),
+        notes=tuple(n for n in (note_a, note_w) if n))
 
 
 class FixedLagConditioner:
@@ -179,12 +249,9 @@ class FixedLagConditioner:
     def _conditioned(self) -> ConditionedObservations:
         key = (self._t[0][-1], self._t[1][-1])
         if self._cache is None or self._cache[0] != key:
-            st = self.settings
-            self._cache = (key, ConditionedObservations(
-                angles=SmoothSignal(np.array(self._t[0]), np.array(self._y[0]), self.rates[0],
-                                    st.angle_cutoff_hz, st.order),
-                wrench=SmoothSignal(np.array(self._t[1]), np.array(self._y[1]), self.rates[1],
-                                    st.force_cutoff_hz, st.order)))
+            self._cache = (key, _conditioned(
+                np.array(self._t[0]), np.array(self._y[0]), self.rates[0],
+                np.array(self._t[1]), np.array(self._y[1]), self.rates[1], self.settings))
         return self._cache[1]
 
     def sample(self, t: np.ndarray) -> dict[str, np.ndarray]:

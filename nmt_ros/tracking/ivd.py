@@ -29,6 +29,7 @@ class IVDResult:
     tau: np.ndarray          # [n, 3] N m
     residual: np.ndarray     # [n, 3] HAT residual wrench (N, N, N m)
     q: np.ndarray            # [n, 6] kinematics used (pinned toe)
+    qd: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))   # [n, 6] their rates
     sim_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     sim_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     sim_qd: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
@@ -62,20 +63,30 @@ def pinned_toe_kinematics(model: JumperModel, theta: np.ndarray, theta_dot: np.n
 def inverse_dynamics_baseline(model: JumperModel, cond: ConditionedObservations,
                               initial: SKTState, rate_hz: float = 1080.0,
                               contact_threshold: float = 20.0) -> IVDResult:
-    """IVD torques during the observed contact (filtered vertical force > threshold [N])."""
+    """IVD torques during the observed contact (filtered vertical force > threshold [N]).
+
+    The first contact phase: from t = 0 when the trial starts loaded (the toe pinned where the
+    initial state has it), else from the first loaded sample (a trial that starts in flight;
+    the toe pinned on the ground at its anchor ``initial.x0``), to the next unloaded one.
+    """
     c0 = time.process_time()
     t_all = np.arange(0, int(np.floor(cond.t_end * rate_hz + 1e-9)) + 1) / rate_hz
     fy = cond.wrench(t_all)[:, 1]
     loaded = fy > contact_threshold
-    n = int(np.argmin(loaded)) if not loaded.all() else t_all.size
-    t = t_all[:max(n, 2)]
+    first = 0 if loaded[0] or not loaded.any() else int(np.argmax(loaded))
+    rest = loaded[first:]
+    n = first + (int(np.argmin(rest)) if not rest.all() else rest.size)
+    t = t_all[first:max(n, first + 2)]
     smp = cond.sample(t)
-    pts = np.asarray(model.call(model.positions, initial.q)[4])
-    toe0 = pts[:, 1]
+    if first == 0:
+        toe0 = np.asarray(model.call(model.positions, initial.q)[4])[:, 1]
+    else:
+        toe0 = np.array([float(initial.x0[1]), 0.0])
     q, qd, qdd = pinned_toe_kinematics(model, smp['theta'], smp['theta_dot'],
                                        smp['theta_ddot'], toe0)
     tau, resid = model.inverse_dynamics(q, qd, qdd, smp['s'], residual_at='hat')
-    return IVDResult(t=t, tau=tau, residual=resid, q=q, cpu_s=time.process_time() - c0)
+    return IVDResult(t=t, tau=tau, residual=resid, q=q, qd=qd,
+                     cpu_s=time.process_time() - c0)
 
 
 def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
@@ -83,8 +94,10 @@ def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
                        t_end: float | None = None, max_angle_deg: float = 120.0) -> IVDResult:
     """Forward simulation driven by the IVD torques (linear in time between samples).
 
-    RK4 with ``substeps`` steps per sample, from the tracker's initial state. Ends at the
-    end of the torques or when the model falls (a segment angle beyond ``max_angle_deg``).
+    RK4 with ``substeps`` steps per sample (more at slow rates: ``simulate_torques``), from
+    the tracker's initial state, or, when the torques begin later (a trial that starts in
+    flight), from the IVD kinematics at their first sample. Ends at the end of the torques or
+    when the model falls (a segment angle beyond ``max_angle_deg``).
     """
     t_end = float(result.t[-1]) if t_end is None else t_end
 
@@ -94,8 +107,13 @@ def simulate_open_loop(model: JumperModel, result: IVDResult, initial: SKTState,
     def fell(_t: float, y: np.ndarray) -> bool:
         return not np.isfinite(y).all() or np.degrees(np.abs(y[:4])).max() > max_angle_deg
 
-    sim = simulate_torques(model, initial.q, initial.qd, initial.x0, tau_at, t_end,
-                           rate_hz=rate_hz, substeps=substeps, stop=fell)
+    t0 = float(result.t[0])
+    if t0 <= 0.0 or result.qd.shape[0] == 0:
+        q0, qd0, t0 = initial.q, initial.qd, 0.0
+    else:
+        q0, qd0 = result.q[0], result.qd[0]
+    sim = simulate_torques(model, q0, qd0, initial.x0, tau_at, t_end, rate_hz=rate_hz,
+                           substeps=substeps, stop=fell, t0=t0)
     result.sim_t, result.sim_q, result.sim_qd = sim.t, sim.x[:, :6], sim.x[:, 6:]
     result.sim_s = sim.s
     result.sim_liftoff_s = sim.liftoff_s

@@ -9,7 +9,9 @@ reference jump's optimisation, OpenSim Moco's "tracking" problem):
     minimise  sum_k |(theta(t_k) - theta_obs,k) / sigma_theta|^2             (120 Hz samples)
             + sum_j |(s(t_j) + [0, 0, b(t_j)] - s_obs,j) / sigma_s|^2       (1080 Hz samples)
             + w_rate N sum_i |(tau_i+1 - tau_i) / 100 N m|^2 / h              (torque smoothness)
-    subject to Eq. 1 (implicit, trapezoidal, one interval per force sample), rest at t = 0,
+    subject to Eq. 1 (implicit, trapezoidal, one interval per force sample), and at t = 0
+    the initial guess's rates and accelerations (rest after a static start; a trial that
+    starts in flight starts moving),
 
 with the moment bias b(t) a low-order polynomial vanishing at t = 0. The fit weighs each
 channel by its noise (with a bias allowance on the angles) instead of filtering each channel
@@ -102,18 +104,19 @@ class TrackingNLP:
 
 
 def tracking_nlp(model: JumperModel, n: int, h: float, idx: np.ndarray,
-                 st: OptimalTrackingSettings) -> TrackingNLP:
+                 st: OptimalTrackingSettings, at_rest: bool = True) -> TrackingNLP:
     """The NLP for n intervals of h seconds and angle samples at grid indices ``idx``.
 
     Observations and contact anchors are parameters, so trials of the same shape share it
-    (``collocation.solvers``, a bounded cache).
+    (``collocation.solvers``, a bounded cache). ``at_rest``: rates and accelerations are
+    zero at t = 0 (constraints); otherwise the caller bounds them (``track_optimal``).
     """
-    key = ('optimal_tracking', n, round(h, 12), idx.tobytes(), st)
-    return solvers.get(model, key, lambda: _build(model, n, h, idx, st))
+    key = ('optimal_tracking', n, round(h, 12), idx.tobytes(), st, at_rest)
+    return solvers.get(model, key, lambda: _build(model, n, h, idx, st, at_rest))
 
 
 def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
-           st: OptimalTrackingSettings) -> TrackingNLP:
+           st: OptimalTrackingSettings, at_rest: bool = True) -> TrackingNLP:
     bw = model.p.body_weight
     muscle = st.actuation == 'muscle'
     nm = model.p.muscles.f0.size
@@ -160,7 +163,7 @@ def _build(model: JumperModel, n: int, h: float, idx: np.ndarray,
         n, h, [Block('q', 6), Block('qd', 6), Block('qdd', 6, scale=QDD_SCALE), *drive],
         node,
         [Defect('q', 'qd'), Defect('qd', 'qdd'), Path('residual'),        # Eq. 1, trapezoidal
-         Fixed('qd', 0), Fixed('qdd', 0),                                  # at rest at t = 0
+         *([Fixed('qd', 0), Fixed('qdd', 0)] if at_rest else []),          # at rest at t = 0
          *([Defect('a', 'adot')] if muscle else [])],
         costs=[LeastSquares(wrench_fit)], global_blocks=[Block('c_bias', nb)],
         node_parameters=[Block('wrench', 3)],
@@ -215,7 +218,8 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
         return replace(guess, status=reason, events=[{'t': 0.0, 'reason': reason}],
                        cpu_s=time.process_time() - c0)
     x0 = np.asarray(guess.x0, dtype=float)
-    nlp = tracking_nlp(model, n, h, idx[keep], st)
+    at_rest = not np.any(guess.qd[0])        # a static start (else: moving at t = 0)
+    nlp = tracking_nlp(model, n, h, idx[keep], st, at_rest)
     tr = nlp.transcription
     guess_values = {'q': _on_grid(guess.q, n), 'qd': _on_grid(guess.qd, n),
                     'qdd': _on_grid(guess.qdd, n)}
@@ -226,6 +230,10 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
     else:
         guess_values['tau'] = _on_grid(guess.tau, n)
         lbx, ubx = tr.bounds()
+    if not at_rest:      # the guess's rates and accelerations at t = 0, held by the bounds
+        for name, value, scale in (('qd', guess.qd[0], 1.0), ('qdd', guess.qdd[0], QDD_SCALE)):
+            i = tr.index(name)[0]
+            lbx[i] = ubx[i] = np.asarray(value, dtype=float) / scale
     p = tr.pack_parameters({'wrench': obs.wrench[:n + 1], 'angles': obs.angles[keep],
                             'x0': x0})
     sol = tr.solve(nlp.solver, tr.pack(guess_values), p, lbx, ubx)

@@ -21,9 +21,11 @@ varying offset jointly with the states. kappa = 0 disables it.
 The model is simulated FORWARD with these torques (fixed-step RK4, ``substeps`` per force
 sample: the closed-loop force dynamics have poles at 1000 rad/s, so RK4 with steps of 0.46 ms
 (lam*h ~ 0.46) is well inside its stability region, 2.8; 4 substeps change the torques by
-< 0.1 % of peak). Jacobians ds/dQ are exact (automatic
-differentiation of the model's single definition) or numerical (central differences, as in
-the paper). Loss of control (the paper's third limitation) is detected and reported.
+< 0.1 % of peak). Slower force plates get more substeps, so that no step exceeds
+``max_step_s`` (by default the step ``substeps`` make at 1080 Hz: 22 per sample at 100 Hz).
+Jacobians ds/dQ are exact (automatic differentiation of the model's single definition) or
+numerical (central differences, as in the paper). Loss of control (the paper's third
+limitation) is detected and reported.
 
 Stability (measured, not assumed): linearised about the static squat, the closed loop with
 Table 1's weights has an unstable mode (eigenvalue about +5 1/s, +3 1/s without the bias
@@ -47,7 +49,7 @@ import casadi as ca
 import numpy as np
 
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.model.simulation import rk4_step
+from nmt_ros.model.simulation import rk4_step, steps_per_sample
 from nmt_ros.tracking.conditioning import ConditionedObservations
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
@@ -70,11 +72,22 @@ class SKTSettings:
     # Tikhonov rows sqrt(w) tau / torque_scale added to Eq. 5: keeps the torques determined
     # when the contact rows vanish (flight) and the foot angle's weight is tiny. 0 = off.
     torque_regularization: float = 0.0
+    # The foot angle's weight while the model is in flight (None: Table 1's weight always).
+    # On the ground the contact holds the foot and 0.001 lets the force rows decide; in the
+    # air nothing does, and a free foot absorbs every mismatch between the observed rotations
+    # and the model's angular momentum (it spins into the ankle's ligament limits). The weight
+    # blends from Table 1's to this one as the model's vertical force falls below
+    # liftoff_force_bw: w = w1 + (w_flight - w1) exp(-(Fy / (liftoff_force_bw BW))^2).
+    flight_foot_weight: float | None = None
     normalize_rows: bool = True      # False: Table 1 weights on raw rows (rad/s^2, N/s, N m/s)
     torque_scale_nm: float = 100.0
     jacobians: str = 'exact'         # 'exact' | 'numerical'
     fd_step: float = 1e-6            # central-difference step for numerical Jacobians
     substeps: int = 2                # RK4 steps per force-plate sample (h = 0.46 ms)
+    # Longest RK4 step [s]: slower force plates get more substeps so that h <= this. None:
+    # the step ``substeps`` make at the paper's 1080 Hz (2: 0.46 ms, 22 steps per sample at
+    # 100 Hz; the live node's 1: 0.93 ms, 11 at 100 Hz).
+    max_step_s: float | None = None
     static_start: bool = True        # the trial starts at rest (the paper's static squat)
     # Lift-off of the tracked model (the rule of model/contact.py): its vertical force falls
     # below the force plate's noise SD (it follows the noisy ~0 N observations in flight with
@@ -118,7 +131,11 @@ class SkeletalTracker:
         self.model = model
         self.settings = settings
         self.rate_hz = rate_hz
-        self.dt = 1.0 / (rate_hz * settings.substeps)   # RK4 step [s]
+        # RK4 steps per output sample: the settings' or more, so that h <= max_step_s.
+        max_step = (settings.max_step_s if settings.max_step_s is not None
+                    else 1.0 / (1080.0 * settings.substeps))
+        self.substeps = steps_per_sample(rate_hz, max_step, settings.substeps)
+        self.dt = 1.0 / (rate_hz * self.substeps)   # RK4 step [s]
         self._build()
 
     def _build(self) -> None:
@@ -168,6 +185,10 @@ class SkeletalTracker:
                       + [st.force_scale_bw * bw * st.moment_lever_m])
         order_gain = ca.vertcat(lam[0:4] ** 2, lam[4:7])
         row_w = ca.sqrt(ca.DM(st.weights))
+        if st.flight_foot_weight is not None:
+            airborne = ca.exp(-(s[1] / (st.liftoff_force_bw * bw)) ** 2)
+            row_w = ca.vertcat(ca.sqrt(st.weights[0] + (st.flight_foot_weight - st.weights[0])
+                                       * airborne), row_w[1:])
         if st.normalize_rows:
             row_w = row_w / (order_gain * sigma)
         Bw = B * ca.repmat(row_w, 1, 3)
@@ -185,15 +206,14 @@ class SkeletalTracker:
 
     def fine_times(self, t0: float, n_samples: int) -> np.ndarray:
         """RK4 stage instants for n output samples after t0 (half-step grid)."""
-        k = self.settings.substeps * n_samples
+        k = self.substeps * n_samples
         return t0 + np.arange(0, 2 * k + 1) * (self.dt / 2)
 
     def advance(self, state: SKTState, refs: np.ndarray) -> tuple[SKTState, dict]:
-        """Integrate over len(refs)//(2*substeps) output samples; refs on ``fine_times``.
+        """Integrate over len(refs)//(2*self.substeps) output samples; refs on ``fine_times``.
 
         Returns the new state and the outputs at each output sample's END instant.
         """
-        st = self.settings
         rhs = self.rhs
         n_sub = (refs.shape[0] - 1) // 2
         dt = self.dt
@@ -211,7 +231,7 @@ class SkeletalTracker:
                 return np.append(np.asarray(qdot).ravel(), float(bdot))
 
             y = rk4_step(f, 0.0, y, dt)
-            if (k + 1) % st.substeps == 0:
+            if (k + 1) % self.substeps == 0:
                 outs.append((y[:12].copy(), float(y[12]), refs[2 * k + 2]))
         Q, b = y[:12], float(y[12])
         new = SKTState(t=state.t + n_sub * dt, q=Q[:6].copy(), qd=Q[6:].copy(), b=b, x0=x0)
@@ -358,6 +378,17 @@ def initial_state(model: JumperModel, ref0: np.ndarray,
         lo, hi = (mid, hi) if fy > fy_obs else (lo, mid)
     q[5] = ankle_h + 0.5 * (lo + hi)
     return SKTState(t=0.0, q=q, qd=qd, b=0.0, x0=model.anchors_at(q))
+
+
+def flight_state(ref0: np.ndarray, ankle: np.ndarray, ankle_rate: np.ndarray,
+                 anchors: np.ndarray) -> SKTState:
+    """Initial state of a trial that starts in flight (off the ground, nothing to balance):
+    the filtered observed angles and rates of ``ref0`` (``reference_arrays`` at t = 0), the
+    ankle centre ``ankle`` [2] (m) and its rate ``ankle_rate`` [2] (m/s) as measured, and the
+    contact anchors ``anchors`` [2] (m): the heel's and toe's ground x where the foot lands."""
+    q = np.r_[ref0[0:4], np.asarray(ankle, dtype=float)]
+    qd = np.r_[ref0[4:8], np.asarray(ankle_rate, dtype=float)]
+    return SKTState(t=0.0, q=q, qd=qd, b=0.0, x0=np.asarray(anchors, dtype=float).copy())
 
 
 def reference_arrays(cond: ConditionedObservations, t: np.ndarray) -> np.ndarray:

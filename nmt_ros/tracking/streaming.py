@@ -28,7 +28,7 @@ truth).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import time
 
 import numpy as np
@@ -78,14 +78,16 @@ class Stage1Stream:
 
     ``conditioning`` (live): the settings of the fixed-lag conditioner the stream owns
     (default: 100 ms look-ahead); or ``conditioner``: one that is fed elsewhere, or the
-    offline conditioned observations of a whole recording (batch).
+    offline conditioned observations of a whole recording (batch). ``start``: the tracked
+    model's state at t = 0 when it is known otherwise (e.g. a trial that starts in flight,
+    from the measured ankle position); None: ``initial_state`` from the observations.
     """
 
     def __init__(self, model: JumperModel, settings: SKTSettings | None = None,
                  conditioning: ConditioningSettings | None = None, *,
                  conditioner: ConditionedObservations | FixedLagConditioner | None = None,
                  angle_rate_hz: float = 120.0, wrench_rate_hz: float = 1080.0,
-                 block: int = 27) -> None:
+                 block: int = 27, start: SKTState | None = None) -> None:
         if conditioner is not None and conditioning is not None:
             raise ValueError('Stage1Stream takes conditioning settings (it builds its '
                              'conditioner) or a conditioner, not both')
@@ -102,6 +104,7 @@ class Stage1Stream:
         self.block = block
         self.tracker = SkeletalTracker(model, self.settings, wrench_rate_hz)
         self._given = conditioner
+        self._start = start
         self.reset()
 
     def reset(self) -> None:
@@ -171,7 +174,8 @@ class Stage1Stream:
             if final < 0.0:
                 return None
             ref0 = reference_arrays(self.conditioner, np.array([0.0]))[0]
-            self.state = initial_state(self.model, ref0, self.settings)
+            self.state = (initial_state(self.model, ref0, self.settings)
+                          if self._start is None else replace(self._start, t=0.0))
             q0 = np.concatenate([self.state.q, self.state.qd])
             first = tracker.outputs([(q0, 0.0, ref0)], self.state.x0)
             ev = tracker.check_control(first, np.array([0.0]))
@@ -224,16 +228,18 @@ class Stage1Stream:
 
 def track_stage1(model: JumperModel, cond: ConditionedObservations,
                  settings: SKTSettings | None = None, rate_hz: float = 1080.0,
-                 t_end: float | None = None, block: int = 27) -> SKTResult:
+                 t_end: float | None = None, block: int = 27,
+                 start: SKTState | None = None) -> SKTResult:
     """Batch Stage 1 over the whole recording: :class:`Stage1Stream` fed every sample.
 
     Output samples are at k / rate_hz (the force-plate instants). Stops at the first loss of
     control and reports it (status 'lost_control', events) with the outputs so far.
+    ``start``: the initial state when known (see :class:`Stage1Stream`).
     """
     c0 = time.process_time()
     settings = settings if settings is not None else SKTSettings()
     stream = Stage1Stream(model, settings, conditioner=cond, wrench_rate_hz=rate_hz,
-                          block=block)
+                          block=block, start=start)
     out = stream.poll(t_end)
     if out is None:  # lost at the start: an empty result that says why
         empty = np.zeros((0, 6))

@@ -1,0 +1,263 @@
+"""Subject models: the jumper (``data/jumper.yaml``) scaled to a subject.
+
+A :class:`Subject` holds what is measured of a person (from a scaled OpenSim model by
+``python -m nmt_ros.osim.subject measure``, or from body mass and stature alone), and
+:func:`scale_factors` turns it into a :class:`SubjectScale` by the rules of
+``data/subject_scaling.yaml``:
+
+* segment mass factor ``k_m,s`` = subject segment mass / jumper segment mass (two legs lumped as
+  the jumper lumps them; with mass and height only, every segment takes ``M / M_jumper``);
+* segment length factor ``k_l,s`` = subject joint-centre distance / the jumper's (thigh, shank,
+  foot; the HAT takes the leg's mean; with mass and height only, ``H / 1.80 m``);
+* inertial parameters: ``m' = k_m m``, COM and joint offsets ``k_l r``, ``Izz' = k_m k_l^2 Izz``;
+  contact points scale with the foot, the contact stiffness and horizontal damping with the
+  body mass (same static sinkage per unit weight);
+* musculotendon paths: ``l_MT'(theta) = k_mus l_MT(theta)`` (so moment arms ``k_mus r``), with
+  ``k_mus`` the mean length factor of the segments the muscle runs along; ``l_opt`` and
+  ``l_slack`` scale alike (normalised fibre lengths unchanged at every pose);
+* strength: ``F0' = F0 (M / M_jumper) ** (2/3)``; passive joint torques by that factor times the
+  leg's length factor.
+
+A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
+:func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
+shipped jumper when the bag has no subject file).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import os
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from nmt_ros.model.parameters import MUSCLES, SEGMENTS, JumperParameters, load_parameters
+
+SCALING_FILE = Path(__file__).resolve().parent / 'data' / 'subject_scaling.yaml'
+SUBJECT_FILE = 'subject.yaml'
+LEG_SEGMENTS = ('thigh', 'shank', 'foot')
+
+
+def load_rules(path: str | Path | None = None) -> dict:
+    """The scaling rules' data file (``data/subject_scaling.yaml``)."""
+    with open(path or SCALING_FILE) as f:
+        return yaml.safe_load(f)
+
+
+@dataclass(frozen=True)
+class Subject:
+    """A person's measures: masses [kg] (two legs lumped), one leg's segment lengths [m]."""
+
+    name: str
+    mass_kg: float
+    segment_masses_kg: dict[str, float]
+    segment_lengths_m: dict[str, float]
+    height_m: float | None = None
+    source: str = ''
+
+
+@dataclass(frozen=True)
+class SubjectScale:
+    """Scale factors applied to the jumper (dimensionless)."""
+
+    mass: dict[str, float]            # per segment
+    length: dict[str, float]          # per segment
+    muscle_length: dict[str, float]   # per muscle
+    strength: float                   # F0 factor
+    passive: float                    # passive joint torque factor
+    total_mass: float                 # subject / jumper total mass
+
+    def as_dict(self) -> dict:
+        return {'mass': dict(self.mass), 'length': dict(self.length),
+                'muscle_length': dict(self.muscle_length), 'strength': self.strength,
+                'passive': self.passive, 'total_mass': self.total_mass}
+
+
+def subject_from_mass_height(mass_kg: float, height_m: float, name: str = 'subject',
+                             params: JumperParameters | None = None,
+                             rules: dict | None = None) -> Subject:
+    """A subject known by body mass [kg] and stature [m] only: the jumper's proportions."""
+    if not (np.isfinite(mass_kg) and 20.0 <= mass_kg <= 250.0):
+        raise ValueError(f'body mass {mass_kg} kg is outside 20..250 kg')
+    if not (np.isfinite(height_m) and 1.0 <= height_m <= 2.5):
+        raise ValueError(f'stature {height_m} m is outside 1.0..2.5 m (give it in metres)')
+    p = params or load_parameters()
+    r = rules or load_rules()
+    km = mass_kg / p.total_mass
+    kl = height_m / float(r['reference']['stature_m'])
+    ref = r['reference']['segment_lengths_m']
+    return Subject(name=name, mass_kg=float(mass_kg), height_m=float(height_m),
+                   segment_masses_kg={s: p.segments[s].mass * km for s in SEGMENTS},
+                   segment_lengths_m={s: float(ref[s]) * kl for s in LEG_SEGMENTS},
+                   source=f'mass {mass_kg} kg and stature {height_m} m (jumper proportions)')
+
+
+def subject_from_measures(measures: dict, name: str = 'subject',
+                          height_m: float | None = None) -> Subject:
+    """A subject from ``python -m nmt_ros.osim.subject measure`` output (a scaled .osim)."""
+    masses = {s: float(measures['segment_masses_kg'][s]) for s in SEGMENTS}
+    lengths = {s: float(measures['segment_lengths_m'][s]) for s in LEG_SEGMENTS}
+    for s, v in {**masses, **lengths}.items():
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f'{measures.get("model", "model")}: segment {s} measures {v}: '
+                             'not a usable subject model')
+    if measures.get('unassigned_bodies'):
+        raise ValueError(f'{measures.get("model")}: bodies {measures["unassigned_bodies"]} '
+                         'belong to no planar segment (gait2392/Rajagopal names expected)')
+    return Subject(name=name, mass_kg=float(sum(masses.values())), height_m=height_m,
+                   segment_masses_kg=masses, segment_lengths_m=lengths,
+                   source=f'OpenSim model {measures.get("model", "?")}')
+
+
+def subject_with_mass(subject: Subject, mass_kg: float) -> Subject:
+    """The subject with body mass ``mass_kg`` [kg]: every segment mass scaled by the same
+    factor (the model's mass distribution kept), lengths unchanged. For a scaled model whose
+    masses are not the subject's (e.g. a generic model's masses left unscaled), when the mass
+    is known otherwise (weighed, or implied by the force plates)."""
+    if not (np.isfinite(mass_kg) and 20.0 <= mass_kg <= 250.0):
+        raise ValueError(f'body mass {mass_kg} kg is outside 20..250 kg')
+    k = float(mass_kg) / subject.mass_kg
+    return replace(subject, mass_kg=float(mass_kg),
+                   segment_masses_kg={n: v * k for n, v in subject.segment_masses_kg.items()},
+                   source=f'{subject.source}; masses scaled x{k:.4f} to {mass_kg:g} kg')
+
+
+def scale_factors(subject: Subject, params: JumperParameters | None = None,
+                  rules: dict | None = None) -> SubjectScale:
+    """The factors that make the jumper this subject (module docstring)."""
+    p = params or load_parameters()
+    r = rules or load_rules()
+    ref = r['reference']['segment_lengths_m']
+    mass = {s: subject.segment_masses_kg[s] / p.segments[s].mass for s in SEGMENTS}
+    length = {s: subject.segment_lengths_m[s] / float(ref[s]) for s in LEG_SEGMENTS}
+    length['hat'] = float(np.mean([length[s] for s in r['hat_length_from']]))
+    length = {s: length[s] for s in SEGMENTS}
+    muscle_length = {m: float(np.mean([length[s] for s in r['muscle_segments'][m]]))
+                     for m in MUSCLES}
+    total = subject.mass_kg / p.total_mass
+    strength = total ** float(r['strength_exponent'])
+    leg = float(np.mean([length['thigh'], length['shank']]))
+    return SubjectScale(mass=mass, length=length, muscle_length=muscle_length,
+                        strength=float(strength), passive=float(strength * leg),
+                        total_mass=float(total))
+
+
+def scale_parameters(params: JumperParameters, scale: SubjectScale) -> JumperParameters:
+    """The jumper's parameters scaled by ``scale`` (a new record; ``params`` unchanged)."""
+    segs = {}
+    for name, s in params.segments.items():
+        km, kl = scale.mass[name], scale.length[name]
+        segs[name] = replace(
+            s, mass=s.mass * km, izz=s.izz * km * kl * kl, com=s.com * kl,
+            distal_joint=None if s.distal_joint is None else s.distal_joint * kl)
+    c = params.contact
+    contact = replace(c, points=c.points * scale.length['foot'], k_y=c.k_y * scale.total_mass,
+                      k_x=c.k_x * scale.total_mass, c_x=c.c_x * scale.total_mass)
+    pj = params.passive
+    k = pj.k.copy()
+    k[:, [0, 2]] *= scale.passive                      # amplitudes k1, k3 (N m)
+    passive = replace(pj, k=k, damping=pj.damping * scale.passive)
+    m = params.muscles
+    kmus = np.array([scale.muscle_length[n] for n in m.names])
+    paths = {n: replace(path, coefficients=path.coefficients * scale.muscle_length[n])
+             for n, path in m.paths.items()}
+    muscles = replace(m, f0=m.f0 * scale.strength, l_opt=m.l_opt * kmus,
+                      l_slack=m.l_slack * kmus, paths=paths)
+    return replace(params, segments=segs, contact=contact, passive=passive, muscles=muscles)
+
+
+def subject_parameters(subject: Subject, params: JumperParameters | None = None,
+                       ) -> tuple[JumperParameters, SubjectScale]:
+    p = params or load_parameters()
+    scale = scale_factors(subject, p)
+    return scale_parameters(p, scale), scale
+
+
+# ---------------------------------------------------------------------------------------------
+# the subject file of a bag
+# ---------------------------------------------------------------------------------------------
+
+def write_subject(path: str | os.PathLike, subject: Subject, scale: SubjectScale | None = None,
+                  ) -> Path:
+    """``subject.yaml``: the subject's measures and the factors applied to the jumper."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / SUBJECT_FILE
+    scale = scale or scale_factors(subject)
+    doc = {
+        'format': 'nmt_ros subject v1',
+        'note': ('The jumper model (nmt_ros/model/data/jumper.yaml) scaled to this subject by '
+                 'nmt_ros/model/subject.py with the factors under "scale" (rules: '
+                 'nmt_ros/model/data/subject_scaling.yaml). Masses kg (two legs lumped), '
+                 'lengths m (one leg, joint-centre distances).'),
+        'subject': {'name': subject.name, 'mass_kg': subject.mass_kg,
+                    'height_m': subject.height_m, 'source': subject.source,
+                    'segment_masses_kg': dict(subject.segment_masses_kg),
+                    'segment_lengths_m': dict(subject.segment_lengths_m)},
+        'scale': scale.as_dict(),
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, 'w') as f:
+        yaml.safe_dump(doc, f, sort_keys=False, width=99)
+    return path
+
+
+def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
+    """The subject and scale factors of a ``subject.yaml`` (or of a bag folder holding one)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / SUBJECT_FILE
+    with open(path) as f:
+        doc = yaml.safe_load(f)
+    if not isinstance(doc, dict) or doc.get('format') != 'nmt_ros subject v1':
+        raise ValueError(f'{path}: not an nmt_ros subject file (format "nmt_ros subject v1")')
+    s, k = doc['subject'], doc['scale']
+    subject = Subject(name=str(s['name']), mass_kg=float(s['mass_kg']),
+                      height_m=None if s.get('height_m') is None else float(s['height_m']),
+                      segment_masses_kg={n: float(v) for n, v in s['segment_masses_kg'].items()},
+                      segment_lengths_m={n: float(v) for n, v in s['segment_lengths_m'].items()},
+                      source=str(s.get('source', '')))
+    missing = [n for n in SEGMENTS if n not in k['mass'] or n not in k['length']] + \
+        [n for n in MUSCLES if n not in k['muscle_length']]
+    if missing:
+        raise ValueError(f'{path}: scale factors missing for {missing}')
+    scale = SubjectScale(mass={n: float(k['mass'][n]) for n in SEGMENTS},
+                         length={n: float(k['length'][n]) for n in SEGMENTS},
+                         muscle_length={n: float(k['muscle_length'][n]) for n in MUSCLES},
+                         strength=float(k['strength']), passive=float(k['passive']),
+                         total_mass=float(k['total_mass']))
+    return subject, scale
+
+
+def subject_file(path: str | os.PathLike | None) -> Path | None:
+    """The subject file of ``path``: a subject YAML itself, or the ``subject.yaml`` of a bag
+    folder (or beside a bag's .mcap file); None when there is none."""
+    if path is None or str(path) == '':
+        return None
+    p = Path(path)
+    if p.suffix == '.yaml':
+        if not p.is_file():
+            raise ValueError(f'{p}: no such subject file')
+        return p
+    p = p / SUBJECT_FILE if p.is_dir() else p.parent / SUBJECT_FILE
+    return p if p.is_file() else None
+
+
+def load_subject_parameters(path: str | os.PathLike | None) -> JumperParameters:
+    """The model parameters of a bag or subject file: its subject applied, or the jumper's."""
+    params = load_parameters()
+    found = subject_file(path)
+    if found is None:
+        return params
+    _, scale = read_subject(found)
+    return scale_parameters(params, scale)
+
+
+def load_subject_model(path: str | os.PathLike | None) -> object:
+    """The :class:`JumperModel` of a bag (folder or .mcap) or of a subject YAML: its
+    subject's, or the shipped jumper (the same object as ``default_model()``) when there is
+    none."""
+    from nmt_ros.model.jumper import JumperModel, default_model
+    if subject_file(path) is None:
+        return default_model()
+    return JumperModel(load_subject_parameters(path))

@@ -1,0 +1,428 @@
+"""A lab recording as the planar jumper's observations, and as an observation bag.
+
+Three ways in, one result (:class:`LabRecording`: segment angles and ground wrench at the
+recording's own rates and times, the subject, and what was done):
+
+* :func:`import_ik`: an OpenSim inverse-kinematics .mot posed on the subject's .osim (in an
+  OpenSim subprocess) gives each leg's body-fixed landmarks (hip, knee and ankle centres, the
+  calcaneus' subtalar and MTP joint centres, hips and shoulders for the trunk);
+* :func:`import_markers` (:func:`import_trc`, :func:`import_c3d`): markers named by a marker
+  map (``nmt_ros.io.marker_map``), short gaps filled and reported;
+* the ground reaction from an OpenSim GRF .mot (plates found by their column names, or named by
+  an ExternalLoads .xml) or from the C3D's own force plates.
+
+Segment angles, the leg combination (mean of left and right) and the plate sum follow
+``nmt_ros.study.sagittal``. The trunk (HAT) angle is the hips-to-shoulders line's, i.e. the
+trunk's absolute angle (pelvis tilt plus lumbar extension in OpenSim's coordinates). The
+wrench's moment is about the foot COM of the subject-scaled planar model placed on the
+combined ankle centre and foot angle, resampled (cubic) onto the force samples; force samples
+outside the motion's time span are dropped and counted.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from nmt_ros import topics
+from nmt_ros.io.force_plates import read_plates
+from nmt_ros.io.marker_map import LEG_LANDMARKS, LEG_LINES, SIDES, landmark, markers_used
+from nmt_ros.io.opensim_files import GroundLoad
+from nmt_ros.io.trc import MarkerTable, read_trc
+from nmt_ros.model.parameters import SEGMENTS, load_parameters
+from nmt_ros.model.subject import Subject, SubjectScale, scale_factors, scale_parameters
+from nmt_ros.records import Observations
+from nmt_ros.study import sagittal
+from nmt_ros.study.sagittal import SagittalFrame
+
+#: Largest marker gap filled by interpolation [s] unless told otherwise.
+MAX_GAP_S = 0.1
+
+
+@dataclass
+class LabRecording:
+    """Observations of a lab trial (trial time = the recording's own time, s)."""
+
+    t_angles: np.ndarray          # [n1] s
+    angles: np.ndarray            # [n1, 4] rad, foot, shank, thigh, hat (legs combined)
+    t_wrench: np.ndarray          # [n2] s
+    wrench: np.ndarray            # [n2, 3] N, N, N m about the planar foot COM
+    ankle: np.ndarray             # [n1, 2] m, the combined ankle centre (sagittal), at t_angles
+    subject: Subject
+    scale: SubjectScale
+    sides: dict = field(default_factory=dict)    # per leg: angles [n1, 3] (foot, shank, thigh)
+    facts: dict = field(default_factory=dict)    # what was read and done (to custom_data)
+
+
+def file_fact(path: str | os.PathLike) -> dict:
+    p = Path(path)
+    return {'file': p.name, 'sha256': hashlib.sha256(p.read_bytes()).hexdigest()}
+
+
+def _rate(t: np.ndarray) -> float:
+    return float(1.0 / np.median(np.diff(t))) if t.size > 1 else float('nan')
+
+
+# ---------------------------------------------------------------------------------------------
+# shared assembly
+# ---------------------------------------------------------------------------------------------
+
+def _subject_foot_com(subject: Subject, scale: SubjectScale | None,
+                      ) -> tuple[SubjectScale, np.ndarray]:
+    scale = scale or scale_factors(subject)
+    params = scale_parameters(load_parameters(), scale)
+    return scale, params.segments['foot'].com
+
+
+def _check_orientation(frame: SagittalFrame, heel: np.ndarray, toe: np.ndarray,
+                       hip: np.ndarray, ankle: np.ndarray, what: str) -> None:
+    fwd = float(np.nanmean((toe - heel)[..., 0]))
+    up = float(np.nanmean((hip - ankle)[..., 1]))
+    if up <= 0:
+        raise ValueError(f'{what}: the hips are below the ankles along up = {frame.up}: give '
+                         'the lab axis that points up (--up)')
+    if fwd <= 0:
+        raise ValueError(f'{what}: the feet point backward along forward = {frame.forward} '
+                         '(the subject faces the other way): give --forward')
+
+
+def _assemble(t_kin: np.ndarray, side_angles: dict[str, np.ndarray], hat: np.ndarray,
+              ankle: dict[str, np.ndarray], t_force: np.ndarray, loads: list[GroundLoad],
+              frame: SagittalFrame, subject: Subject, scale: SubjectScale | None,
+              facts: dict) -> LabRecording:
+    """Combine legs, sum plates about the planar foot COM, pack a LabRecording."""
+    combined, lr_rms = {}, {}
+    for k, seg in enumerate(('foot', 'shank', 'thigh')):
+        combined[seg], lr_rms[seg] = sagittal.combine_legs(side_angles['r'][:, k],
+                                                           side_angles['l'][:, k])
+    angles = np.column_stack([combined['foot'], combined['shank'], combined['thigh'], hat])
+    scale, com_foot = _subject_foot_com(subject, scale)
+    ankle_mid = 0.5 * (ankle['r'] + ankle['l'])
+    com = sagittal.foot_com(ankle_mid, angles[:, 0], com_foot)
+    keep = (t_force >= t_kin[0] - 1e-9) & (t_force <= t_kin[-1] + 1e-9)
+    if not keep.any():
+        raise ValueError(f'the force samples ({t_force[0]:.3f}..{t_force[-1]:.3f} s) do not '
+                         f'overlap the motion ({t_kin[0]:.3f}..{t_kin[-1]:.3f} s)')
+    t_w = t_force[keep]
+    loads = [GroundLoad(ld.force[keep], ld.point[keep], ld.torque[keep]) for ld in loads]
+    wrench = sagittal.sagittal_wrench(loads, frame, sagittal.resample(t_kin, com, t_w))
+    facts = dict(facts)
+    facts.update({
+        'angles_rate_hz': _rate(t_kin), 'wrench_rate_hz': _rate(t_w),
+        'frame': {'forward': frame.forward, 'up': frame.up},
+        'legs': 'mean of the left and right segment angles (nmt_ros.study.sagittal)',
+        'left_right_rms_deg': {k: float(np.rad2deg(v)) for k, v in lr_rms.items()},
+        'wrench_samples_dropped': int((~keep).sum()),
+        'wrench_moment_about': 'planar foot COM: mean ankle centre + R(foot) c_foot (subject)',
+    })
+    return LabRecording(t_angles=t_kin, angles=angles, t_wrench=t_w, wrench=wrench,
+                        ankle=ankle_mid, subject=subject, scale=scale, sides=side_angles,
+                        facts=facts)
+
+
+# ---------------------------------------------------------------------------------------------
+# the three routes
+# ---------------------------------------------------------------------------------------------
+
+def ik_segment_angles(lm: dict[str, np.ndarray], frame: SagittalFrame,
+                      ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
+    """Per-leg [n, 3] (foot, shank, thigh), HAT [n] angles and ankle centres [n, 2] from the
+    landmarks of ``python -m nmt_ros.osim.subject kinematics`` (OpenSim ground frame)."""
+    lines = {'foot': ('subtalar', 'mtp'), 'shank': ('ankle', 'knee'), 'thigh': ('knee', 'hip')}
+    opensim = SagittalFrame('+x', '+y')
+    sides, ankle = {}, {}
+    for s in SIDES:
+        cols = []
+        for a, b in lines.values():
+            phi = sagittal.direction_angle(frame.project(lm[f'{s}_{a}']),
+                                           frame.project(lm[f'{s}_{b}']))
+            phi0 = float(sagittal.direction_angle(opensim.project(lm[f'default_{s}_{a}']),
+                                                  opensim.project(lm[f'default_{s}_{b}'])))
+            cols.append(sagittal.segment_angle(phi, phi0))
+        sides[s] = np.column_stack(cols)
+        ankle[s] = frame.project(lm[f'{s}_ankle'])
+
+    def mid(name: str, prefix: str = '') -> np.ndarray:
+        return 0.5 * (lm[f'{prefix}r_{name}'] + lm[f'{prefix}l_{name}'])
+
+    phi = sagittal.direction_angle(frame.project(mid('hip_pelvis')),
+                                   frame.project(mid('shoulder')))
+    phi0 = float(sagittal.direction_angle(opensim.project(mid('hip_pelvis', 'default_')),
+                                          opensim.project(mid('shoulder', 'default_'))))
+    return sides, sagittal.segment_angle(phi, phi0), ankle
+
+
+def import_ik(ik: str | os.PathLike, grf: str | os.PathLike, model: str | os.PathLike,
+              subject: Subject, external_loads: str | os.PathLike | None = None,
+              frame: SagittalFrame | None = None) -> LabRecording:
+    """IK .mot + GRF .mot on the subject's .osim (module docstring)."""
+    from nmt_ros.osim.subject_process import ik_landmarks
+    frame = frame or SagittalFrame('+x', '+y')
+    lm = ik_landmarks(model, ik)
+    t = lm['time']
+    if t.size < 4 or np.any(np.diff(t) <= 0):
+        raise ValueError(f'{ik}: time must increase over at least 4 rows')
+    for s in SIDES:
+        _check_orientation(frame, frame.project(lm[f'{s}_subtalar']),
+                           frame.project(lm[f'{s}_mtp']), frame.project(lm[f'{s}_hip']),
+                           frame.project(lm[f'{s}_ankle']), str(ik))
+    sides, hat, ankle = ik_segment_angles(lm, frame)
+    t_f, loads, names = read_plates(grf, external_loads)
+    facts = {'route': 'ik', 'plates': names,
+             'sources': {'ik': file_fact(ik), 'grf': file_fact(grf), 'model': file_fact(model),
+                         **({'external_loads': file_fact(external_loads)}
+                            if external_loads else {})},
+             'ik_coordinates_at_default': [str(c) for c in lm['coordinates_at_default']],
+             'segments': {'foot': 'subtalar -> MTP joint centres (calcaneus)',
+                          'shank': 'ankle -> knee centre', 'thigh': 'knee -> hip centre',
+                          'hat': 'hip centres -> shoulder joints (trunk: pelvis tilt + lumbar '
+                                 'extension)'}}
+    return _assemble(t, sides, hat, ankle, t_f, loads, frame, subject, None, facts)
+
+
+def marker_segment_angles(markers: MarkerTable, marker_map: dict, frame: SagittalFrame,
+                          max_gap_s: float = MAX_GAP_S,
+                          ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray],
+                                     list[dict]]:
+    """Per-leg [n, 3] (foot, shank, thigh), HAT [n], ankle centres [n, 2], gap repairs."""
+    pos, repairs = {}, []
+    for name in markers_used(marker_map):
+        pos[name], fixed = sagittal.fill_gaps(markers.time, markers.marker(name), max_gap_s,
+                                              f'marker {name}')
+        repairs += fixed
+    zero = marker_map.get('zero_deg')
+    offsets = marker_map.get('ankle_offset_m')
+    if zero is None or offsets is None:
+        raise ValueError(f'{marker_map.get("source_file", "marker map")}: not calibrated (no '
+                         'zero_deg / ankle_offset_m): give --model or run python -m '
+                         'nmt_ros.study.marker_calibration --model M.osim --map MAP')
+    sides, ankle = {}, {}
+    for s in SIDES:
+        p = {k: frame.project(landmark(marker_map, s, k, pos)) for k in LEG_LANDMARKS}
+        _check_orientation(frame, p['heel'], p['toe'], p['hip'], p['ankle'],
+                           markers.source or 'markers')
+        cols = [sagittal.segment_angle(sagittal.direction_angle(p[a], p[b]),
+                                       np.deg2rad(float(zero[s][seg])))
+                for seg, (a, b) in LEG_LINES.items()]
+        sides[s] = np.column_stack(cols)
+        ankle[s] = p['ankle'] + sagittal.rotate(sides[s][:, 1], np.asarray(offsets[s], float))
+    hip = frame.project(landmark(marker_map, None, 'hip', pos))
+    shoulder = frame.project(landmark(marker_map, None, 'shoulder', pos))
+    hat = sagittal.segment_angle(sagittal.direction_angle(hip, shoulder),
+                                 np.deg2rad(float(zero['hat'])))
+    return sides, hat, ankle, repairs
+
+
+def import_markers(markers: MarkerTable, t_force: np.ndarray, loads: list[GroundLoad],
+                   marker_map: dict, subject: Subject, frame: SagittalFrame | None = None,
+                   max_gap_s: float = MAX_GAP_S, facts: dict | None = None) -> LabRecording:
+    """Markers (any source) + plates (lab frame) -> LabRecording."""
+    frame = frame or SagittalFrame(**marker_map.get('frame', {}))
+    sides, hat, ankle, repairs = marker_segment_angles(markers, marker_map, frame, max_gap_s)
+    info = dict(facts or {})
+    info.update({'marker_map': {'name': marker_map.get('name', ''),
+                                'file': Path(marker_map.get('source_file', '')).name,
+                                'calibrated_on': marker_map.get('calibrated_on', '')},
+                 'repairs': repairs, 'max_gap_s': max_gap_s})
+    return _assemble(markers.time, sides, hat, ankle, t_force, loads, frame, subject, None,
+                     info)
+
+
+def import_trc(trc: str | os.PathLike, grf: str | os.PathLike, marker_map: dict,
+               subject: Subject, external_loads: str | os.PathLike | None = None,
+               frame: SagittalFrame | None = None, max_gap_s: float = MAX_GAP_S,
+               ) -> LabRecording:
+    """TRC markers + OpenSim GRF .mot."""
+    markers = read_trc(trc)
+    t_f, loads, names = read_plates(grf, external_loads)
+    facts = {'route': 'trc', 'plates': names,
+             'sources': {'trc': file_fact(trc), 'grf': file_fact(grf),
+                         **({'external_loads': file_fact(external_loads)}
+                            if external_loads else {})}}
+    return import_markers(markers, t_f, loads, marker_map, subject, frame, max_gap_s, facts)
+
+
+def import_c3d(c3d: str | os.PathLike, marker_map: dict, subject: Subject,
+               grf: str | os.PathLike | None = None,
+               external_loads: str | os.PathLike | None = None,
+               frame: SagittalFrame | None = None, max_gap_s: float = MAX_GAP_S,
+               ) -> LabRecording:
+    """C3D markers and force plates (or a GRF .mot given instead of the C3D's plates)."""
+    from nmt_ros.io.c3d import read_c3d
+    markers, t_f, loads, c3d_facts = read_c3d(c3d)
+    sources = {'c3d': file_fact(c3d)}
+    names = [f'plate {k + 1}' for k in range(len(loads))]
+    if grf is not None:
+        t_f, loads, names = read_plates(grf, external_loads)
+        sources['grf'] = file_fact(grf)
+    elif not loads:
+        raise ValueError(f'{c3d}: no force plates (FORCE_PLATFORM group); give --grf')
+    facts = {'route': 'c3d', 'plates': names, 'sources': sources,
+             'c3d': {k: v for k, v in c3d_facts.items() if k != 'plates'}}
+    return import_markers(markers, t_f, loads, marker_map, subject, frame, max_gap_s, facts)
+
+
+# ---------------------------------------------------------------------------------------------
+# the whole import: subject, route, momentum balance
+# ---------------------------------------------------------------------------------------------
+
+#: Implied and model body mass differing by more than this fraction is warned about.
+MASS_TOLERANCE = 0.05
+
+
+def lab_subject(name: str, model: str | os.PathLike | None = None,
+                mass_kg: float | None = None, height_m: float | None = None,
+                ) -> tuple[Subject, dict | None]:
+    """The subject of an import and the model's measures (None without a model).
+
+    From the .osim (its masses and segment lengths; with ``mass_kg`` its masses scaled to
+    that body mass), or from mass and stature alone (the jumper's proportions).
+    """
+    from nmt_ros.model.subject import (
+        subject_from_mass_height,
+        subject_from_measures,
+        subject_with_mass,
+    )
+    if model is not None:
+        if height_m is not None:
+            raise ValueError('--height goes without --model (the model gives the lengths)')
+        from nmt_ros.osim.subject_process import measure_model
+        measures = measure_model(model)
+        subject = subject_from_measures(measures, name)
+        if mass_kg is not None:
+            subject = subject_with_mass(subject, mass_kg)
+        return subject, measures
+    if mass_kg is not None and height_m is not None:
+        return subject_from_mass_height(mass_kg, height_m, name), None
+    raise ValueError('no subject: give --model SUBJECT.osim [--mass KG], or --mass KG '
+                     '--height M')
+
+
+def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | None = None,
+               grf: Path | None = None, external_loads: Path | None = None,
+               model: Path | None = None, mass_kg: float | None = None,
+               height_m: float | None = None, name: str | None = None,
+               marker_map: Path | None = None, forward: str | None = None,
+               up: str | None = None, max_gap_s: float | None = None) -> LabRecording:
+    """``nmt import-lab``: one route (IK, TRC or C3D) to a :class:`LabRecording` with its
+    subject and the momentum balance checked (:func:`check_momentum`)."""
+    from nmt_ros.io.marker_map import load_marker_map
+    from nmt_ros.study.marker_calibration import calibrate
+    routes = {'ik': ik, 'trc': trc, 'c3d': c3d}
+    given = [r for r, v in routes.items() if v is not None]
+    if len(given) != 1:
+        raise ValueError('give exactly one of --ik, --trc, --c3d')
+    route = given[0]
+    if route in ('ik', 'trc') and grf is None:
+        raise ValueError(f'--{route} needs --grf')
+    if route == 'ik' and model is None:
+        raise ValueError('--ik needs --model (the .osim the IK was solved with)')
+    source = Path(routes[route])
+    subject, measures = lab_subject(name or source.stem, model, mass_kg, height_m)
+    kw = {} if max_gap_s is None else {'max_gap_s': max_gap_s}
+    if route == 'ik':
+        frame = SagittalFrame(forward or '+x', up or '+y')
+        rec = import_ik(ik, grf, model, subject, external_loads, frame)
+    else:
+        mmap = load_marker_map(marker_map)
+        if measures is not None and all(n in measures['markers_m'] for n in markers_used(mmap)):
+            mmap = {**calibrate(mmap, measures), 'source_file': mmap['source_file']}
+        frame_map = mmap.get('frame', {})
+        frame = SagittalFrame(forward or frame_map.get('forward', '+x'),
+                              up or frame_map.get('up', '+y'))
+        if route == 'trc':
+            rec = import_trc(trc, grf, mmap, subject, external_loads, frame, **kw)
+        else:
+            rec = import_c3d(c3d, mmap, subject, grf, external_loads, frame, **kw)
+    check_momentum(rec)
+    return rec
+
+
+def check_momentum(rec: LabRecording) -> dict:
+    """The recording's momentum balance with its subject's model
+    (``nmt_ros.study.momentum_balance``): the implied body mass, the unmeasured support and
+    its step-off, in ``rec.facts['momentum_balance']``; a warning in ``rec.facts['warnings']``
+    when the implied mass differs from the subject's by more than :data:`MASS_TOLERANCE`."""
+    from nmt_ros.model.jumper import JumperModel
+    from nmt_ros.model.subject import scale_parameters
+    from nmt_ros.study.momentum_balance import momentum_balance
+    model = JumperModel(scale_parameters(load_parameters(), rec.scale))
+    mb = momentum_balance(model, rec.t_angles, rec.angles, rec.t_angles, rec.ankle,
+                          rec.t_wrench, rec.wrench)
+    report = mb.report(rec.subject.mass_kg)
+    rec.facts['momentum_balance'] = report
+    warnings = rec.facts.setdefault('warnings', [])
+    implied = mb.implied
+    if implied is None:
+        warnings.append('no body mass could be estimated from the recording (neither a quiet '
+                        'stance on the plates nor a contact between two flights)')
+    elif abs(implied.mass_kg / rec.subject.mass_kg - 1.0) > MASS_TOLERANCE:
+        warnings.append(
+            f'the force plates imply a body mass of {implied.mass_kg:.1f} kg '
+            f'({implied.method}, {implied.interval_s[0]:.3f}..{implied.interval_s[1]:.3f} s), '
+            f'{100 * (implied.mass_kg / rec.subject.mass_kg - 1):+.1f} % from the model\'s '
+            f'{rec.subject.mass_kg:.1f} kg (more than {100 * MASS_TOLERANCE:g} %): check the '
+            'model\'s masses, or give the measured mass with --mass')
+    if mb.unmeasured_support_s is not None:
+        a, b = mb.unmeasured_support_s
+        warnings.append(f'{a:.3f}..{b:.3f} s: the body is supported by something that is not '
+                        f'on a force plate (the COM does not fall while the plates read no '
+                        f'load); step-off at {b:.3f} s, where `nmt track` starts by default')
+    return report
+
+
+# ---------------------------------------------------------------------------------------------
+# the bag
+# ---------------------------------------------------------------------------------------------
+
+def write_lab_bag(out: str | os.PathLike, rec: LabRecording) -> Path:
+    """The recording as an observation bag (trial time = recording time) + ``subject.yaml``."""
+    from nmt_ros.io.trial_bag import write_trial_bag
+    from nmt_ros.model.subject import write_subject
+    obs = Observations(t_angles=rec.t_angles, angles=rec.angles, t_wrench=rec.t_wrench,
+                       wrench=rec.wrench, frame_id=topics.WRENCH_FRAME,
+                       t_ankle=rec.t_angles, ankle=rec.ankle)
+    s = rec.subject
+    custom = {
+        'nmt.subject': {'name': s.name, 'mass_kg': s.mass_kg, 'height_m': s.height_m,
+                        'body_weight_n': s.mass_kg * load_parameters().gravity,
+                        'source': s.source, 'model_file': 'subject.yaml',
+                        'implied_mass_kg': rec.facts.get('momentum_balance', {}).get(
+                            'implied_mass_kg')},
+        'nmt.source': rec.facts.get('sources', {}),
+        'nmt.import': {k: v for k, v in rec.facts.items() if k != 'sources'},
+    }
+    write_trial_bag(out, obs, custom_data=custom)
+    write_subject(Path(out), s, rec.scale)
+    return Path(out)
+
+
+def summary(rec: LabRecording) -> dict:
+    """Figures of an import, for printing."""
+    f = rec.facts
+    contact = rec.wrench[:, 1] > 0.02 * rec.subject.mass_kg * 9.80665
+    return {'route': f.get('route'), 'frames': int(rec.t_angles.size),
+            'angles_rate_hz': round(f['angles_rate_hz'], 3),
+            'force_samples': int(rec.t_wrench.size),
+            'wrench_rate_hz': round(f['wrench_rate_hz'], 3),
+            'time_s': [float(rec.t_angles[0]), float(rec.t_angles[-1])],
+            'subject_mass_kg': round(rec.subject.mass_kg, 3),
+            'implied_mass_kg': f.get('momentum_balance', {}).get('implied_mass_kg'),
+            'implied_mass_method': f.get('momentum_balance', {}).get('implied_mass_method'),
+            'step_off_s': f.get('momentum_balance', {}).get('step_off_s'),
+            'peak_vertical_force_bw': round(float(rec.wrench[:, 1].max())
+                                            / (rec.subject.mass_kg * 9.80665), 3),
+            'contact_s': float(contact.sum() / f['wrench_rate_hz']),
+            'left_right_rms_deg': {k: round(v, 2) for k, v in f['left_right_rms_deg'].items()},
+            'repairs': len(f.get('repairs', [])),
+            'angle_range_deg': {n: [round(float(np.rad2deg(rec.angles[:, i].min())), 1),
+                                    round(float(np.rad2deg(rec.angles[:, i].max())), 1)]
+                                for i, n in enumerate(SEGMENTS)}}
+
+
+def summary_json(rec: LabRecording) -> str:
+    return json.dumps(summary(rec), indent=1)

@@ -1,0 +1,167 @@
+"""Subject models: the scaled jumper, against the jumper itself and against OpenSim's scaling.
+
+OpenSim runs in subprocesses only (``python -m nmt_ros.osim.subject``).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nmt_ros.model.jumper import JumperModel, default_model
+from nmt_ros.model.parameters import MUSCLES, SEGMENTS, load_parameters
+from nmt_ros.model.subject import (
+    load_rules,
+    load_subject_model,
+    read_subject,
+    scale_factors,
+    scale_parameters,
+    subject_from_mass_height,
+    subject_from_measures,
+    write_subject,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+SOURCE = REPO / 'data' / 'opensim' / 'gait10dof18musc.osim'
+REAL_MODEL = REPO / 'data' / 'real' / 'opencap_dropjump' / 'Models' / 'final.osim'
+OPENSIM_MUSCLES = [f'{n}_r' for n in ('glut_max', 'iliopsoas', 'hamstrings', 'bifemsh',
+                                      'rect_fem', 'vasti', 'gastroc', 'soleus', 'tib_ant')]
+POSES = np.deg2rad([[0.0, 0.0, 0.0], [20.0, -60.0, 70.0], [-25.0, -90.0, 90.0],
+                    [10.0, -20.0, 20.0], [-10.0, -110.0, 100.0]])   # ankle, knee, hip
+
+
+def _flat(p: object) -> np.ndarray:
+    seg = np.concatenate([np.r_[s.mass, s.izz, s.com, s.distal_joint if s.distal_joint
+                                is not None else []] for s in p.segments.values()])
+    m = p.muscles
+    paths = np.concatenate([m.paths[n].coefficients for n in m.names])
+    return np.concatenate([seg, p.contact.points.ravel(), [p.contact.k_y, p.contact.k_x,
+                           p.contact.c_x], p.passive.k.ravel(), p.passive.damping, m.f0,
+                           m.l_opt, m.l_slack, paths])
+
+
+def test_scale_one_is_the_jumper(tmp_path: Path) -> None:
+    p = load_parameters()
+    subject = subject_from_mass_height(p.total_mass, load_rules()['reference']['stature_m'])
+    scale = scale_factors(subject, p)
+    for factors in (scale.mass, scale.length, scale.muscle_length):
+        np.testing.assert_allclose(list(factors.values()), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(_flat(scale_parameters(p, scale)), _flat(p), rtol=1e-15)
+    # through the file and the model
+    (tmp_path / 'bag').mkdir()
+    write_subject(tmp_path / 'bag', subject, scale)
+    model = load_subject_model(tmp_path / 'bag')
+    q = np.array([0.1, -0.4, 0.7, -0.5, 0.2, 0.5])
+    np.testing.assert_allclose(np.asarray(model.mass_matrix(q)),
+                               np.asarray(default_model().mass_matrix(q)), rtol=1e-14)
+    assert load_subject_model(tmp_path) is default_model()   # a bag without a subject file
+
+
+def test_scaled_model_is_consistent(tmp_path: Path) -> None:
+    p = load_parameters()
+    subject = subject_from_mass_height(90.0, 1.92, 'tall')
+    write_subject(tmp_path / 'subject.yaml', subject)
+    read, scale = read_subject(tmp_path / 'subject.yaml')
+    assert read == subject
+    q = scale_parameters(p, scale)
+    assert q.total_mass == pytest.approx(90.0, rel=1e-12)
+    k = 1.92 / 1.80
+    model = JumperModel(q)
+    theta = np.array([0.2, -0.9, 1.1])
+    np.testing.assert_allclose(np.asarray(model.moment_arms(theta)),
+                               k * np.asarray(default_model().moment_arms(theta)), rtol=1e-12)
+    np.testing.assert_allclose(q.muscles.f0, p.muscles.f0 * (90.0 / p.total_mass) ** (2 / 3))
+    # the standing COM height scales with stature
+    assert model.standing_com_height == pytest.approx(k * default_model().standing_com_height,
+                                                      rel=0.02)
+    with pytest.raises(ValueError, match='stature 180.0 m'):
+        subject_from_mass_height(75.0, 180.0)
+
+
+def _osim(*args: str) -> None:
+    proc = subprocess.run([sys.executable, '-m', 'nmt_ros.osim.subject', *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+
+
+@pytest.mark.opensim
+def test_reference_lengths_are_the_jumper_source_model(tmp_path: Path) -> None:
+    _osim('measure', '--model', str(SOURCE), '--out', str(tmp_path / 'm.json'))
+    m = json.loads((tmp_path / 'm.json').read_text())
+    ref = load_rules()['reference']['segment_lengths_m']
+    for seg in ('thigh', 'shank', 'foot'):
+        assert m['segment_lengths_m'][seg] == pytest.approx(ref[seg], abs=1e-6)
+    p = load_parameters()
+    for seg in SEGMENTS:
+        assert m['segment_masses_kg'][seg] == pytest.approx(p.segments[seg].mass, abs=1e-4)
+
+
+def _crosscheck(tmp_path: Path, length: dict, mass: float) -> tuple[dict, object, object]:
+    spec = {'length': length, 'mass_kg': mass, 'poses': POSES.tolist(),
+            'muscles': OPENSIM_MUSCLES}
+    (tmp_path / 'spec.json').write_text(json.dumps(spec))
+    _osim('scaled-jumper', '--model', str(SOURCE), '--spec', str(tmp_path / 'spec.json'),
+          '--out', str(tmp_path / 'out.json'))
+    res = json.loads((tmp_path / 'out.json').read_text())
+    subject = subject_from_measures(res, 'opensim-scaled')
+    params = scale_parameters(load_parameters(), scale_factors(subject))
+    return res, subject, params
+
+
+@pytest.mark.opensim
+def test_uniform_scaling_matches_opensim(tmp_path: Path) -> None:
+    """All bodies x1.1, 85 kg, by OpenSim's scaling and ours: the same model. Our paths differ
+    from OpenSim's GeometryPath by the polynomial fit's error (up to 2.2 mm of moment arm at
+    full knee extension, the fit's edge); uniform scaling must multiply that error by exactly
+    1.1, so (ours - OpenSim) at scale 1.1 = 1.1 x (ours - OpenSim) at scale 1."""
+    diffs = {}
+    for k, mass in ((1.0, load_parameters().total_mass), (1.1, 85.0)):
+        (tmp_path / str(k)).mkdir()
+        res, subject, params = _crosscheck(tmp_path / str(k), {s: k for s in SEGMENTS}, mass)
+        assert res['total_mass_kg'] == pytest.approx(mass, rel=1e-9)
+        scale = scale_factors(subject)
+        np.testing.assert_allclose(list(scale.length.values()), k, rtol=1e-9)
+        np.testing.assert_allclose(list(scale.mass.values()), mass / load_parameters().total_mass,
+                                   rtol=1e-6)
+        np.testing.assert_allclose(params.muscles.l_opt, res['optimal_fiber_length_m'],
+                                   rtol=1e-6)
+        np.testing.assert_allclose(params.muscles.l_slack, res['tendon_slack_length_m'],
+                                   rtol=1e-6)
+        model = JumperModel(params)
+        arms = np.array([np.asarray(model.moment_arms(th)) for th in POSES])    # [n, 9, 3]
+        lmt = np.array([np.asarray(model.musculotendon_lengths(th)).ravel() for th in POSES])
+        diffs[k] = (arms - np.asarray(res['moment_arms_m']),
+                    lmt - np.asarray(res['musculotendon_lengths_m']))
+    assert np.abs(diffs[1.0][0]).max() < 2.5e-3             # the fit's error (m)
+    np.testing.assert_allclose(diffs[1.1][0], 1.1 * diffs[1.0][0], atol=1e-9)
+    np.testing.assert_allclose(diffs[1.1][1], 1.1 * diffs[1.0][1], atol=1e-9)
+
+
+@pytest.mark.opensim
+def test_subject_scaling_against_opensim(tmp_path: Path) -> None:
+    """The shipped subject's factors (foot 1.28, shank 1.086, thigh 1.090): OpenSim scales
+    each body's path points by its own factor, we scale a muscle by its segments' mean.
+    Measured worst moment-arm difference over the poses, % of the muscle's peak: GMAX 0.2,
+    ILPSO 4.9, HAMS 0.4, BFSH 0.6, RF 3.4, VAS 4.3, GAS 15.5, SOL 15.3, TA 3.6 (the ankle
+    plantarflexors' moment arm grows with the calcaneus, i.e. the foot's 1.28, while their
+    length follows the shank's 1.086: one factor per muscle cannot do both)."""
+    from nmt_ros.osim.subject_process import measure_model
+    subject = subject_from_measures(measure_model(REAL_MODEL), 'DJ1')
+    scale = scale_factors(subject)
+    res, _, params = _crosscheck(tmp_path, scale.length, subject.mass_kg)
+    assert res['total_mass_kg'] == pytest.approx(subject.mass_kg, rel=1e-9)
+    for seg in ('thigh', 'shank', 'foot'):
+        assert res['segment_lengths_m'][seg] == pytest.approx(
+            subject.segment_lengths_m[seg], rel=1e-6)
+    model = JumperModel(params)
+    ours = np.array([np.asarray(model.moment_arms(th)) for th in POSES])
+    theirs = np.asarray(res['moment_arms_m'])
+    peak = np.abs(theirs).max(axis=(0, 2))                 # per muscle
+    err = np.abs(ours - theirs).max(axis=(0, 2)) / peak
+    print(dict(zip(MUSCLES, np.round(err, 3))))
+    bound = np.array([0.01, 0.06, 0.01, 0.01, 0.05, 0.05, 0.17, 0.17, 0.05])
+    assert np.all(err < bound), dict(zip(MUSCLES, err))
