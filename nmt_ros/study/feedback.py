@@ -22,8 +22,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sl
 from scipy.interpolate import CubicSpline
+import scipy.linalg as sl
 
 from nmt_ros.model.jumper import JumperModel
 
