@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='bag folder name (routine, or routine_faults with --faults)')
     parser.add_argument('--seed', type=int, default=0, help='routine, noise and fault seed')
     parser.add_argument('--duration', type=float, default=None,
-                        help='seconds (64; --quick: 8)')
+                        help='seconds (60; --quick: 8)')
     parser.add_argument('--jumps', type=int, default=None,
                         help='jump cycles, the first a drop jump (5; --quick: 1)')
     parser.add_argument('--no-drop', action='store_true',
@@ -33,7 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--faults', action='store_true',
                         help='occlusions, NaN samples, force-plate drift and spikes')
     parser.add_argument('--both', action='store_true',
-                        help='write routine/ and routine_faults/ from the same truth')
+                        help='write routine/ and its faulty twin routine_faults/ (same truth, '
+                             'not repeated there) from one simulation')
+    parser.add_argument('--truth-rate', type=float, default=1080.0, choices=(1080.0, 120.0),
+                        help='rate of the kinematic and muscle truth topics (Hz)')
+    parser.add_argument('--no-opensim', action='store_true',
+                        help='leave out the OpenSim truth files (large for long routines)')
     parser.add_argument('--quick', action='store_true',
                         help='short, one jump, coarse plans (tests); not the shipped truth')
     parser.add_argument('--force', action='store_true', help='replace existing output')
@@ -86,14 +91,17 @@ def run(args: argparse.Namespace) -> int:
     for folder, faults in zip(folders, [False, True] if args.both else [args.faults]):
         if folder.exists():
             shutil.rmtree(folder)
+        twin = args.both and faults
         facts = write_routine_folder(folder, model, routine, faults=faults,
-                                     generation_cpu_s=sim_cpu)
+                                     generation_cpu_s=sim_cpu, truth_rate_hz=args.truth_rate,
+                                     opensim=not (args.no_opensim or twin),
+                                     with_truth=not twin)
         _say(f'wrote {folder} ({facts["messages"]} messages, '
              f'{facts["bag_bytes"] / 1e6:.2f} MB)')
     for c in routine.cycles:
         _say(f'{c.kind} at {c.start_s:.2f} s: target {100 * c.target_height_m:.2f} cm, '
              f'achieved {100 * c.achieved_height_m:.2f} cm')
-    _say(f'simulation CPU {sim_cpu:.1f} s ({json.dumps({k: round(v, 1) for k, v in routine.cpu_s.items()})}), '
-         f'wall {time.perf_counter() - w0:.1f} s in all')
-    del asdict, np
+    parts = json.dumps({k: round(v, 1) for k, v in routine.cpu_s.items()})
+    _say(f'simulation CPU {sim_cpu:.1f} s ({parts}), wall {time.perf_counter() - w0:.1f} s '
+         'in all')
     return 0

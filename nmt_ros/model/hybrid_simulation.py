@@ -67,6 +67,40 @@ class HybridSimulation:
     message: str = ''
 
 
+class _Evaluator:
+    """Numeric evaluation of one CasADi function through its buffer interface (no DM
+    conversions: ~4x less overhead per call than ``Function.__call__``); sparse outputs are
+    scattered into dense arrays. Not re-entrant: the returned arrays are overwritten by the
+    next call."""
+
+    def __init__(self, fn: object) -> None:
+        self._args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self._res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._buf, self._trigger = fn.buffer()
+        for i, a in enumerate(self._args):
+            self._buf.set_arg(i, memoryview(a))
+        for i, r in enumerate(self._res):
+            self._buf.set_res(i, memoryview(r))
+        sp = fn.sparsity_out(0)
+        self._shape = (sp.size1(), sp.size2())
+        self._dense = sp.is_dense()
+        if not self._dense:
+            rows, cols = sp.get_triplet()
+            self._rows, self._cols = np.asarray(rows), np.asarray(cols)
+
+    def __call__(self, *args: np.ndarray) -> np.ndarray:
+        for dst, a in zip(self._args, args):
+            dst[:] = np.ravel(a)
+        self._trigger()
+        out = self._res[0]
+        if self._dense:
+            return out.reshape(self._shape, order='F').copy() if self._shape[1] > 1 \
+                else out.copy()
+        dense = np.zeros(self._shape)
+        dense[self._rows, self._cols] = out
+        return dense
+
+
 def vertical_point_forces(model: JumperModel, x: np.ndarray) -> np.ndarray:
     """Vertical force [N] of each contact point [2] at state x (independent of the anchors)."""
     f = np.asarray(model.contact_forces(x[:6], x[6:12], np.zeros(2)))
@@ -76,7 +110,7 @@ def vertical_point_forces(model: JumperModel, x: np.ndarray) -> np.ndarray:
 def simulate_hybrid(model: JumperModel, x_init: np.ndarray, anchors: np.ndarray,
                     control: Control, t_start: float, t_end: float,
                     t_eval: np.ndarray | None = None, airborne: tuple[bool, bool] | None = None,
-                    rtol: float = 1e-8, atol: float = 1e-9, max_step: float = 0.01,
+                    rtol: float = 1e-6, atol: float = 1e-8, max_step: float = 0.01,
                     ) -> HybridSimulation:
     """Integrate from ``x_init`` at ``t_start`` to ``t_end`` [s], output at ``t_eval`` [s].
 
@@ -84,8 +118,9 @@ def simulate_hybrid(model: JumperModel, x_init: np.ndarray, anchors: np.ndarray,
     airborne at the start (armed for a touchdown); by default those whose vertical force is
     below ``REARM_FORCE_N``. ``rtol``/``atol``: Radau's tolerances; ``max_step`` [s].
     """
-    fode = model.musculoskeletal_ode
-    fjac = model.musculoskeletal_jacobian
+    fode = _Evaluator(model.musculoskeletal_ode)
+    fjac = _Evaluator(model.musculoskeletal_jacobian)
+    fforce = _Evaluator(model.contact_forces)
     m = model.p.muscles
     beta = m.tau_act / m.tau_deact
     x = np.asarray(x_init, dtype=float).copy()
@@ -103,24 +138,19 @@ def simulate_hybrid(model: JumperModel, x_init: np.ndarray, anchors: np.ndarray,
         x0 = anchors.copy()
 
         def rhs(tt: float, y: np.ndarray, x0: np.ndarray = x0) -> np.ndarray:
-            return np.asarray(fode(y, control(tt, y), x0)).ravel()
+            return fode(y, control(tt, y), x0)
 
         def jac(tt: float, y: np.ndarray, x0: np.ndarray = x0) -> np.ndarray:
             u = control(tt, y)
-            j = np.asarray(fjac(y, u, x0))
+            j = fjac(y, u, x0)
             du = control.jacobian(tt, y)
             if du is not None:
                 gain = (1.0 - (1.0 - beta) * y[12:]) / m.tau_act      # d adot / d u
                 j[12:, :] += gain[:, None] * du
             return j
 
-        events = []
-        for i in range(2):
-            if armed[i]:
-                ev = _force_event(model, i, TOUCHDOWN_FORCE_N, +1)
-            else:
-                ev = _force_event(model, i, REARM_FORCE_N, -1)
-            events.append(ev)
+        events = [_force_event(fforce, i, TOUCHDOWN_FORCE_N, +1) if armed[i]
+                  else _force_event(fforce, i, REARM_FORCE_N, -1) for i in range(2)]
         sel = t_eval[(t_eval >= t - 1e-12) & (t_eval <= t_end + 1e-12)]
         grid = np.union1d(sel, [t_end])          # t_end too: the final state
         sol = solve_ivp(rhs, (t, t_end), x, method='Radau', jac=jac, rtol=rtol, atol=atol,
@@ -155,10 +185,13 @@ def simulate_hybrid(model: JumperModel, x_init: np.ndarray, anchors: np.ndarray,
             armed[i] = not armed[i]
 
 
-def _force_event(model: JumperModel, point: int, level: float, direction: int):
-    """solve_ivp event: point's vertical force minus ``level`` [N], crossed in ``direction``."""
+def _force_event(forces: _Evaluator, point: int, level: float, direction: int):
+    """solve_ivp event: point's vertical force minus ``level`` [N], crossed in ``direction``
+    (``forces``: the model's contact_forces; the vertical force needs no anchors)."""
+    zero = np.zeros(2)
+
     def event(_t: float, y: np.ndarray) -> float:
-        return float(vertical_point_forces(model, y)[point] - level)
+        return float(forces(y[:6], y[6:12], zero)[1, point] - level)
 
     event.terminal = True
     event.direction = direction

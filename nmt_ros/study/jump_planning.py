@@ -55,6 +55,8 @@ NX = 21
 SETTLE_S = 0.012
 HEEL_DELAY_S = 0.08
 ANCHOR_SLIP_M = 0.002
+#: In a drop jump the heel may rise from HEEL_OFF_S before lift-off (s).
+HEEL_OFF_S = 0.15
 
 
 @dataclass(frozen=True)
@@ -136,12 +138,13 @@ class PhasePlanner:
 
     def __init__(self, model: JumperModel, stance: Stance,
                  weights: PlanWeights = PlanWeights(), tol: float = 1e-6,
-                 max_iter: int = 1500) -> None:
+                 max_iter: int = 1500, print_level: int = 0) -> None:
         self.model = model
         self.stance = stance
         self.weights = weights
         self.tol = tol
         self.max_iter = max_iter
+        self.print_level = print_level
 
     # ------------------------------------------------------------------ the node
     def _node(self, v: dict[str, ca.SX]) -> dict[str, ca.SX]:
@@ -222,8 +225,8 @@ class PhasePlanner:
         n_free = max(2, int(np.ceil(0.012 / fine)))   # the toe may rise in the last ~12 ms
         last_down = n - n_free
         cons = [Path('heel_vy', range(1, n + 1), -0.02, np.inf) if airborne_until is None
-                else Path('heel_vy', range(grid.node_at(airborne_until + 0.06), n + 1),
-                          -0.02, np.inf),
+                else Path('heel_vy', range(grid.node_at(airborne_until + HEEL_DELAY_S),
+                                           n + 1), -0.02, np.inf),
                 Path('elastic', [n], -np.inf, 1.0),
                 Path('com_vy', [n], 0.0, np.inf),
                 Path('com_vx', [n], -0.02, 0.02),
@@ -234,8 +237,11 @@ class PhasePlanner:
             k_td = None
         else:
             k_td = grid.node_at(airborne_until)
+            # the heel is down from touchdown + HEEL_DELAY_S until the push (HEEL_OFF_S
+            # before lift-off) lifts it
             cons += self._touchdown_constraints(grid, airborne_until, last_down,
-                                                toe_clearance)
+                                                toe_clearance,
+                                                grid.node_at(duration - HEEL_OFF_S))
         key = ('push', n, airborne_until is not None, round(duration, 6),
                round(airborne_until or 0.0, 6), float(apex_target))
         lo, hi = self._bounds()
@@ -285,7 +291,8 @@ class PhasePlanner:
         if not hasattr(tr, '_routine_solver'):
             tr._routine_solver = tr.solver(f'routine_{kind}', {
                 'expand': True, 'print_time': False,
-                'ipopt': {'tol': self.tol, 'max_iter': self.max_iter, 'print_level': 0,
+                'ipopt': {'tol': self.tol, 'max_iter': self.max_iter,
+                          'print_level': self.print_level,
                           'sb': 'yes', 'mu_strategy': 'adaptive', 'linear_solver': 'mumps'}})
         lbx, ubx = tr.bounds(lower, upper)
         for (block, node), value in fixed.items():
@@ -306,11 +313,12 @@ class PhasePlanner:
         return plan, tr
 
     def _touchdown_constraints(self, grid: Grid, t_td: float, k_end: int,
-                               clearance: float) -> list:
+                               clearance: float, k_end_heel: int | None = None) -> list:
         """Airborne (both points below the touchdown force) before the pinned toe touchdown
         t_td [s]; from then on the toe within ``ANCHOR_SLIP_M`` of its anchor, on the ground
-        from ``SETTLE_S`` later, and the heel (from ``HEEL_DELAY_S``) likewise, until node
-        ``k_end`` (exclusive)."""
+        from ``SETTLE_S`` later, until node ``k_end`` (exclusive), and the heel likewise from
+        ``HEEL_DELAY_S`` after the touchdown until ``k_end_heel`` (default ``k_end``)."""
+        k_end_heel = k_end if k_end_heel is None else k_end_heel
         k_td = grid.node_at(t_td)
         k_down = grid.node_at(t_td + SETTLE_S)
         k_hd = grid.node_at(t_td + HEEL_DELAY_S)
@@ -321,8 +329,8 @@ class PhasePlanner:
                      Path('heel_fy', before, -np.inf, contact_law.LIFTOFF_FORCE_N)]
         cons += [Path('toe_slip', range(k_td, k_end), -ANCHOR_SLIP_M, ANCHOR_SLIP_M),
                  Path('toe_y', range(k_down, k_end), -np.inf, clearance),
-                 Path('heel_y', range(k_hd, k_end), -np.inf, clearance),
-                 Path('heel_slip', range(k_hd, k_end), -ANCHOR_SLIP_M, ANCHOR_SLIP_M)]
+                 Path('heel_y', range(k_hd, k_end_heel), -np.inf, clearance),
+                 Path('heel_slip', range(k_hd, k_end_heel), -ANCHOR_SLIP_M, ANCHOR_SLIP_M)]
         return cons
 
     # ------------------------------------------------------------------ guesses

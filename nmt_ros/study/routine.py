@@ -53,18 +53,18 @@ RATE_HZ = 1080.0
 class RoutineSettings:
     """What the routine holds and how it is generated (defaults: the shipped routine)."""
 
-    duration_s: float = 64.0
+    duration_s: float = 60.0
     jumps: int = 5
     seed: int = 0
     drop: bool = True                    # open with a drop jump
     max_jump_m: float = 0.2589           # this model's maximal (squat) jump, above standing
     fraction_range: tuple[float, float] = (0.35, 1.0)
-    drop_fraction: float = 0.6
+    drop_fraction: float = 0.5
     drop_height_m: float = 0.30          # lowest foot point above the ground at release
     first_stance_s: float = 8.0          # at least, before the first countermovement jump
     min_stance_s: float = 4.0            # at least, between cycles and at the end
     push_s: float = 0.9                  # countermovement + push-off plan (s)
-    drop_contact_s: float = 0.36         # drop jump: touchdown to lift-off (s)
+    drop_contact_s: float = 0.45         # drop jump: touchdown to lift-off (s)
     landing_com_m: float = 0.03          # COM above standing height at toe touchdown (m)
     recovery_s: float = 1.2              # touchdown to rest in the stance equilibrium (s)
     height_tolerance_m: float = 0.004    # re-plan the push-off beyond this miss
@@ -187,8 +187,8 @@ class RoutineBuilder:
         """(lift-off [s], apex time [s], apex height above standing [m]) of the first flight
         in a simulated push-off (the 1080 Hz samples; the COM's maximum in flight)."""
         m = self.model
-        fy = np.array([np.asarray(m.contact_forces(x[:6], x[6:12], a))[1].sum()
-                       for x, a in zip(sim.x, sim.anchors)])
+        forces, = m.batch(m.contact_forces, sim.x[:, :6], sim.x[:, 6:12], sim.anchors)
+        fy = forces[:, 1, :].sum(axis=1)
         loaded = np.flatnonzero(fy > 1.0)
         after = np.flatnonzero((fy <= 1.0) & (np.arange(fy.size) > (loaded[0] if loaded.size
                                                                     else 0)))
@@ -263,7 +263,7 @@ class RoutineBuilder:
         """Plan and simulate the rest of the flight, the landing and the recovery."""
         s = self.s
         t_td = self._fall_time(x, 0.0)
-        grid = ({'fine': 0.003, 'medium': 0.008, 'coarse': 0.03} if s.quick else {})
+        grid = ({'coarse': 0.02} if s.quick else {})
         plan = self._plan(lambda: self.planner.landing(
             x, u, anchors, t_td, t_td + s.recovery_s, guess=self.templates.get('landing'),
             **grid), 'landing')

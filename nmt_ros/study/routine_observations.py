@@ -129,7 +129,8 @@ def make_routine_observations(truth: Truth, settings: RoutineObservationSettings
                   'wrench_bias': wrench_bias.copy(), 'wrench_noise': wrench_noise,
                   'angle_sd': angle_sd, 'wrench_sd': wrench_sd,
                   'angle_index': idx_a, 'wrench_index': idx_w,
-                  'smooth_wrench_bias': wrench_bias.copy()}
+                  'smooth_wrench_bias': wrench_bias.copy(),
+                  'smooth_angle_bias': angle_bias.copy()}
     angles = theta + angle_bias + angle_noise
     wrench = s + wrench_bias + wrench_noise
     info = {'settings': st.as_dict(), 'angle_sd_rad': angle_sd.tolist(),

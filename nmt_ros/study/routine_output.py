@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmt_ros.io.routine_bag import write_routine_bag
+from nmt_ros.io.routine_bag import as_float32, write_routine_bag
 from nmt_ros.model.contact import LIFTOFF_FORCE_N
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.study.opensim_results import write_motion
@@ -17,16 +17,63 @@ from nmt_ros.study.routine_observations import (
     RoutineObservationSettings,
     make_routine_observations,
 )
-from nmt_ros.study.trial import Truth, truth_from_simulation
+from nmt_ros.study.trial import Observations, Truth, truth_from_simulation
 
 
 def routine_truth(model: JumperModel, routine: Routine) -> Truth:
     """The routine's truth as a trial record (``x0`` holds the anchors per sample [n, 2];
-    ``liftoff_s`` the first lift-off)."""
+    ``liftoff_s`` the first lift-off), every array rounded to float32 precision (relative
+    6e-8: below the integrator's tolerance; the bags compress ~2x better)."""
     first = next((c.liftoff_s for c in routine.cycles if np.isfinite(c.liftoff_s)),
                  float('nan'))
-    return truth_from_simulation(model, routine.t, routine.x, routine.u, routine.anchors,
-                                 first)
+    truth = truth_from_simulation(model, routine.t, routine.x, routine.u, routine.anchors,
+                                  first)
+    for name in ('q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's', 'point_forces', 'x0'):
+        setattr(truth, name, as_float32(getattr(truth, name)))
+    return truth
+
+
+#: Resolution of the stored observations: the force plate's A/D step (1/64 N, 1/512 N m:
+#: a 16-bit converter over +-2 kN is ~0.06 N) and the mocap angles' (2^-16 rad, 1.5e-5 rad),
+#: far below the noise (15 N, 0.017 rad); the bias components at 2^-12 N, 2^-14 N m, 2^-20 rad.
+#: Dyadic steps: observation - truth - bias is then exact in float64.
+WRENCH_STEP = np.array([2.0 ** -6, 2.0 ** -6, 2.0 ** -9])
+ANGLE_STEP = 2.0 ** -16
+WRENCH_BIAS_STEP = np.array([2.0 ** -12, 2.0 ** -12, 2.0 ** -14])
+ANGLE_BIAS_STEP = 2.0 ** -20
+
+
+def quantize(x: np.ndarray, step: float | np.ndarray) -> np.ndarray:
+    """x rounded to multiples of ``step`` (NaN kept)."""
+    return np.round(np.asarray(x, dtype=float) / step) * step
+
+
+def rounded_observations(truth: Truth, settings: RoutineObservationSettings,
+                         body_weight: float) -> tuple[Observations, dict]:
+    """``make_routine_observations`` with the observations and the bias components rounded
+    to their resolutions (``*_STEP``) and the noise recomputed as observation - truth - bias,
+    so that the identity holds exactly in the bag."""
+    obs, comp = make_routine_observations(truth, settings, body_weight)
+    for key in ('wrench_bias', 'wrench_drift', 'wrench_spikes', 'smooth_wrench_bias'):
+        if key in comp:
+            comp[key] = quantize(comp[key], WRENCH_BIAS_STEP)
+    for key in ('angle_bias', 'angle_spikes'):
+        if key in comp:
+            comp[key] = quantize(comp[key], ANGLE_BIAS_STEP)
+    if 'wrench_drift' in comp:     # the parts sum exactly to the published bias
+        comp['wrench_bias'] = (comp['smooth_wrench_bias'] + comp['wrench_drift']
+                               + comp['wrench_spikes'])
+        comp['angle_bias'] = comp['smooth_angle_bias'] + comp['angle_spikes']
+    nan_a, nan_w = np.isnan(obs.angles), np.isnan(obs.wrench)
+    obs.angles = quantize(truth.q[comp['angle_index'], :4] + comp['angle_bias']
+                          + comp['angle_noise'], ANGLE_STEP)
+    obs.wrench = quantize(truth.s[comp['wrench_index']] + comp['wrench_bias']
+                          + comp['wrench_noise'], WRENCH_STEP)
+    obs.angles[nan_a] = np.nan
+    obs.wrench[nan_w] = np.nan
+    comp['angle_noise'] = obs.angles - truth.q[comp['angle_index'], :4] - comp['angle_bias']
+    comp['wrench_noise'] = obs.wrench - truth.s[comp['wrench_index']] - comp['wrench_bias']
+    return obs, comp
 
 
 def contact_intervals(t: np.ndarray, fy: np.ndarray,
@@ -100,19 +147,26 @@ def routine_facts(model: JumperModel, routine: Routine, truth: Truth) -> dict:
 
 def write_routine_folder(folder: str | Path, model: JumperModel, routine: Routine,
                          faults: bool = False, generation_cpu_s: float | None = None,
-                         ) -> dict:
-    """Bag + OpenSim truth files + figure of a routine in ``folder``; returns its facts."""
+                         truth_rate_hz: float = 1080.0, opensim: bool = True,
+                         with_truth: bool = True) -> dict:
+    """Bag + OpenSim truth files (``opensim``) + figure of a routine in ``folder``; returns
+    its facts. ``truth_rate_hz``: rate of the kinematic and muscle truth topics;
+    ``with_truth`` False leaves the truth topics out (the faulty twin of a clean bag)."""
     folder = Path(folder)
     truth = routine_truth(model, routine)
     obs_settings = RoutineObservationSettings(faults=faults, seed=routine.settings.seed)
-    obs, comp = make_routine_observations(truth, obs_settings, model.p.body_weight)
+    obs, comp = rounded_observations(truth, obs_settings, model.p.body_weight)
     facts = routine_facts(model, routine, truth)
     if generation_cpu_s is not None:
         facts['generation_cpu_s'] = generation_cpu_s
     custom = {f'nmt.routine.{k}': v for k, v in facts.items()}
     custom['nmt.routine.observations'] = obs.info
-    info = write_routine_bag(folder, obs, truth, comp, routine.anchors, custom_data=custom)
-    write_motion(folder, model, 'truth', truth.t, truth.q, truth.qd, truth.a, routine.anchors)
+    if not with_truth:
+        custom['nmt.routine.truth'] = 'not in this bag: that of the clean routine bag with the same seed'
+    info = write_routine_bag(folder, obs, truth, comp, truth.x0, custom_data=custom,
+                             truth_rate_hz=truth_rate_hz, with_truth=with_truth)
+    if opensim:
+        write_motion(folder, model, 'truth', truth.t, truth.q, truth.qd, truth.a, truth.x0)
     bw = model.p.body_weight
     plot_routine(truth.t, truth.s[:, 1] / bw, centre_of_pressure(model, truth),
                  facts['cycles'], routine.stances, folder / 'routine.png',
