@@ -50,10 +50,10 @@ from nmt_ros.tracking.collocation import (
 )
 
 NX = 21
-#: After the pinned toe touchdown: the toe is on the ground SETTLE_S later (s), the heel from
-#: HEEL_DELAY_S (s); a landed point stays within ANCHOR_SLIP_M of its anchor (m).
+#: Landing: the heel touches down HEEL_DELAY_S after the toe (s); a point is on the ground
+#: SETTLE_S after its touchdown (s) and stays within ANCHOR_SLIP_M of its anchor (m).
 SETTLE_S = 0.012
-HEEL_DELAY_S = 0.08
+HEEL_DELAY_S = 0.06
 ANCHOR_SLIP_M = 0.002
 #: In a drop jump the heel may rise from HEEL_OFF_S before lift-off (s).
 HEEL_OFF_S = 0.15
@@ -261,12 +261,16 @@ class PhasePlanner:
 
     def landing(self, x_start: np.ndarray, u_start: np.ndarray, anchors_guess: np.ndarray,
                 t_touchdown: float, duration: float, *, fine: float = 0.0015,
-                medium: float = 0.004, coarse: float = 0.015,
+                medium: float = 0.004, coarse: float = 0.015, flight: float = 0.005,
                 guess: Plan | None = None) -> Plan:
         """From a flight state: touchdown pinned at ``t_touchdown`` [s] (from the start),
         landing and recovery to the quiet-stance equilibrium at rest at ``duration`` [s]."""
-        grid = Grid.build(duration, coarse, [(t_touchdown - 0.01, t_touchdown + 0.04, fine),
-                                             (t_touchdown + 0.04, t_touchdown + 0.3, medium)])
+        # the flight too on a medium grid: the toe's path decides when it lands; fine steps
+        # through the toe's and the heel's touchdowns
+        t_heel = t_touchdown + HEEL_DELAY_S
+        grid = Grid.build(duration, coarse, [(0.0, t_touchdown - 0.01, flight),
+                                             (t_touchdown - 0.01, t_heel + 0.04, fine),
+                                             (t_heel + 0.04, t_touchdown + 0.35, medium)])
         n = grid.n
         st = self.stance
         cons = self._touchdown_constraints(grid, t_touchdown, n + 1, 0.002)
@@ -314,23 +318,24 @@ class PhasePlanner:
 
     def _touchdown_constraints(self, grid: Grid, t_td: float, k_end: int,
                                clearance: float, k_end_heel: int | None = None) -> list:
-        """Airborne (both points below the touchdown force) before the pinned toe touchdown
-        t_td [s]; from then on the toe within ``ANCHOR_SLIP_M`` of its anchor, on the ground
-        from ``SETTLE_S`` later, until node ``k_end`` (exclusive), and the heel likewise from
-        ``HEEL_DELAY_S`` after the touchdown until ``k_end_heel`` (default ``k_end``)."""
+        """Touchdowns pinned to nodes, as the hybrid simulation places anchors: the toe at
+        t_td [s], the heel ``HEEL_DELAY_S`` later. Each point stays below the touchdown force
+        before its node, is exactly at its anchor there (the anchor is where it lands), then
+        within ``ANCHOR_SLIP_M`` of it and on the ground from ``SETTLE_S`` later, until node
+        ``k_end`` (toe) or ``k_end_heel`` (heel; default ``k_end``), exclusive."""
         k_end_heel = k_end if k_end_heel is None else k_end_heel
-        k_td = grid.node_at(t_td)
-        k_down = grid.node_at(t_td + SETTLE_S)
-        k_hd = grid.node_at(t_td + HEEL_DELAY_S)
-        before = range(1, k_td)
         cons = []
-        if len(before):
-            cons += [Path('toe_fy', before, -np.inf, contact_law.LIFTOFF_FORCE_N),
-                     Path('heel_fy', before, -np.inf, contact_law.LIFTOFF_FORCE_N)]
-        cons += [Path('toe_slip', range(k_td, k_end), -ANCHOR_SLIP_M, ANCHOR_SLIP_M),
-                 Path('toe_y', range(k_down, k_end), -np.inf, clearance),
-                 Path('heel_y', range(k_hd, k_end_heel), -np.inf, clearance),
-                 Path('heel_slip', range(k_hd, k_end_heel), -ANCHOR_SLIP_M, ANCHOR_SLIP_M)]
+        for point, t_p, k_last in (('toe', t_td, k_end), ('heel', t_td + HEEL_DELAY_S,
+                                                           k_end_heel)):
+            k_p = grid.node_at(t_p)
+            k_down = grid.node_at(t_p + SETTLE_S)
+            if k_p > 1:
+                cons.append(Path(f'{point}_fy', range(1, k_p), -np.inf,
+                                 contact_law.LIFTOFF_FORCE_N))
+            cons += [Path(f'{point}_slip', [k_p], 0.0, 0.0),
+                     Path(f'{point}_slip', range(k_p + 1, k_last), -ANCHOR_SLIP_M,
+                          ANCHOR_SLIP_M),
+                     Path(f'{point}_y', range(k_down, k_last), -np.inf, clearance)]
         return cons
 
     # ------------------------------------------------------------------ guesses

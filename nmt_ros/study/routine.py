@@ -69,7 +69,7 @@ class RoutineSettings:
     recovery_s: float = 1.2              # touchdown to rest in the stance equilibrium (s)
     height_tolerance_m: float = 0.004    # re-plan the push-off beyond this miss
     max_replans: int = 2
-    track_q: float = 100.0               # tracking weights of the time-varying LQR
+    track_q: float = 1000.0              # tracking weights of the time-varying LQR
     track_r: float = 100.0
     plan_tol: float = 1e-6
     quick: bool = False                  # coarser grids (tests), not the shipped truth
