@@ -20,7 +20,7 @@ from nmt_ros.io.bags import bag_info, read_arrays
 from nmt_ros.io.opensim_files import read_table
 from nmt_ros.io.trial_bag import read_observations
 from nmt_ros.model.jumper import default_model
-from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
+from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = REPO / 'bags' / 'routine'
@@ -275,4 +275,3 @@ def test_shipped_faults_are_where_their_topics_say() -> None:
     assert np.abs(drift[flight, 1]).max() > 0.002 * BW
     assert np.abs(np.diff(drift[:, 1])).max() < 0.001 * BW         # slow
     assert 0.15 * BW < np.abs(spikes).max() < 0.55 * BW
-    del MUSCLES

@@ -29,6 +29,7 @@ are where the points land, as the hybrid simulation's rule places them.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import time
 
@@ -225,8 +226,8 @@ class PhasePlanner:
         n_free = max(2, int(np.ceil(0.012 / fine)))   # the toe may rise in the last ~12 ms
         last_down = n - n_free
         cons = [Path('heel_vy', range(1, n + 1), -0.02, np.inf) if airborne_until is None
-                else Path('heel_vy', range(grid.node_at(airborne_until + HEEL_DELAY_S),
-                                           n + 1), -0.02, np.inf),
+                else Path('heel_vy', range(grid.node_at(airborne_until + HEEL_DELAY_S
+                                                        + 0.03), n + 1), -0.02, np.inf),
                 Path('elastic', [n], -np.inf, 1.0),
                 Path('com_vy', [n], 0.0, np.inf),
                 Path('com_vx', [n], -0.02, 0.02),
@@ -234,9 +235,7 @@ class PhasePlanner:
         fixed = {('x', 0): x_start, ('u', 0): u_start}
         if airborne_until is None:
             cons.append(Path('toe_y', range(1, last_down), -np.inf, toe_clearance))
-            k_td = None
         else:
-            k_td = grid.node_at(airborne_until)
             # the heel is down from touchdown + HEEL_DELAY_S until the push (HEEL_OFF_S
             # before lift-off) lifts it
             cons += self._touchdown_constraints(grid, airborne_until, last_down,
@@ -287,8 +286,9 @@ class PhasePlanner:
         plan.facts = {'t_touchdown_s': t_touchdown, 'duration_s': duration, 'nodes': n + 1}
         return plan
 
-    def _solve(self, kind: str, key: tuple, grid: Grid, build, guess: dict, lower: dict,
-               upper: dict, fixed: dict, x_end: np.ndarray) -> tuple[Plan, Transcription]:
+    def _solve(self, kind: str, key: tuple, grid: Grid, build: Callable[[], Transcription],
+               guess: dict, lower: dict, upper: dict, fixed: dict,
+               x_end: np.ndarray) -> tuple[Plan, Transcription]:
         """Solve on the (cached) transcription: ``fixed`` node-block values {(block, node):
         value}, ``x_end`` the end state where finite."""
         tr = solvers.get(self.model, ('routine', kind) + key, build)

@@ -173,8 +173,8 @@ class RoutineBuilder:
                           st.x[None] + c[:, None] * self.sway_dx, self.k_stance, smooth=True)
         return self._simulate(law, x, anchors, t0, t1, last)
 
-    def _plan(self, fn: Callable[[], Plan], what: str) -> Plan:
-        plan = fn()
+    def _plan(self, plan: Plan, what: str) -> Plan:
+        """A solved plan, counted and reported; RuntimeError if it did not converge."""
         self.cpu['plan'] += plan.cpu_s
         if not plan.success:
             raise RuntimeError(f'the {what} plan did not converge: {plan.status} '
@@ -214,11 +214,11 @@ class RoutineBuilder:
             if drop:
                 t_td = self._fall_time(x, 0.0)
                 duration = t_td + s.drop_contact_s
-                plan = self._plan(lambda: self.planner.push_off(
+                plan = self._plan(self.planner.push_off(
                     x, u, anchors, apex, duration, airborne_until=t_td,
                     guess=self.templates.get('drop'), **self._push_grid()), 'drop jump')
             else:
-                plan = self._plan(lambda: self.planner.push_off(
+                plan = self._plan(self.planner.push_off(
                     x, u, anchors, apex, s.push_s, guess=self.templates.get('cmj'),
                     **self._push_grid()), 'push-off')
             cycle.plan_cpu_s += plan.cpu_s
@@ -264,7 +264,7 @@ class RoutineBuilder:
         s = self.s
         t_td = self._fall_time(x, 0.0)
         grid = ({'coarse': 0.02} if s.quick else {})
-        plan = self._plan(lambda: self.planner.landing(
+        plan = self._plan(self.planner.landing(
             x, u, anchors, t_td, t_td + s.recovery_s, guess=self.templates.get('landing'),
             **grid), 'landing')
         cycle.plan_cpu_s += plan.cpu_s

@@ -20,16 +20,19 @@ from nmt_ros.study.routine_observations import (
 from nmt_ros.study.trial import Observations, Truth, truth_from_simulation
 
 
-def routine_truth(model: JumperModel, routine: Routine) -> Truth:
+def routine_truth(model: JumperModel, routine: Routine, rounded: bool = True) -> Truth:
     """The routine's truth as a trial record (``x0`` holds the anchors per sample [n, 2];
-    ``liftoff_s`` the first lift-off), every array rounded to float32 precision (relative
-    6e-8: below the integrator's tolerance; the bags compress ~2x better)."""
+    ``liftoff_s`` the first lift-off); ``rounded``: every array rounded to float32 precision
+    (relative 6e-8: below the integrator's tolerance; the bags compress ~2x better). The
+    OpenSim files take the unrounded truth: OpenSim differentiates the coordinates twice, and
+    float32 steps at 1080 Hz would add ~1 % of the joint torques' peak."""
     first = next((c.liftoff_s for c in routine.cycles if np.isfinite(c.liftoff_s)),
                  float('nan'))
     truth = truth_from_simulation(model, routine.t, routine.x, routine.u, routine.anchors,
                                   first)
-    for name in ('q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's', 'point_forces', 'x0'):
-        setattr(truth, name, as_float32(getattr(truth, name)))
+    if rounded:
+        for name in ('q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's', 'point_forces', 'x0'):
+            setattr(truth, name, as_float32(getattr(truth, name)))
     return truth
 
 
@@ -162,11 +165,13 @@ def write_routine_folder(folder: str | Path, model: JumperModel, routine: Routin
     custom = {f'nmt.routine.{k}': v for k, v in facts.items()}
     custom['nmt.routine.observations'] = obs.info
     if not with_truth:
-        custom['nmt.routine.truth'] = 'not in this bag: that of the clean routine bag with the same seed'
+        custom['nmt.routine.truth'] = ('not in this bag: that of the clean routine bag of the '
+                                       'same seed')
     info = write_routine_bag(folder, obs, truth, comp, truth.x0, custom_data=custom,
                              truth_rate_hz=truth_rate_hz, with_truth=with_truth)
     if opensim:
-        write_motion(folder, model, 'truth', truth.t, truth.q, truth.qd, truth.a, truth.x0)
+        exact = routine_truth(model, routine, rounded=False)
+        write_motion(folder, model, 'truth', exact.t, exact.q, exact.qd, exact.a, exact.x0)
     bw = model.p.body_weight
     plot_routine(truth.t, truth.s[:, 1] / bw, centre_of_pressure(model, truth),
                  facts['cycles'], routine.stances, folder / 'routine.png',
