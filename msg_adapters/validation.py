@@ -53,7 +53,7 @@ def as_matrix(values: Any, n: int, k: int, what: str,
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape != (n, k):
         raise ValueError(f'{what} must have shape ({n}, {k}), got {arr.shape}')
-    check_finite(np.where(np.isnan(arr), 0.0, arr) if allow_nan else arr, what, labels)
+    check_finite(arr, what, labels, allow_nan=allow_nan)
     return arr
 
 

@@ -39,20 +39,17 @@ import numpy as np
 
 from msg_adapters.joint_state import joint_states_from_arrays
 from msg_adapters.wrench import wrenches_from_arrays
+from nmt_ros import topics
 from nmt_ros.io.bags import BagInfo, BagWriter, bag_info
 from nmt_ros.io.trial_bag import (
-    ANGLES_TOPIC,
-    WRENCH_FRAME,
-    WRENCH_TOPIC,
     _muscle_topics,
     _time_ordered,
     _wrench_arrays,
     to_stamps_ns,
 )
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
-from nmt_ros.study.trial import TRIAL_EPOCH_NS, Observations, Truth
+from nmt_ros.records import TRIAL_EPOCH_NS, Observations, Truth
 
-ANCHORS_TOPIC = '/truth/contact_anchors'
 CONTACT_POINTS = ('heel', 'toe')
 #: Chunk size of the routine bags: large chunks compress better (zstd), and readers of a
 #: minutes-long routine read it whole anyway.
@@ -89,45 +86,46 @@ def routine_messages(obs: Observations, truth: Truth, components: dict, anchors:
     change = np.r_[True, np.any(np.diff(anchors, axis=0) != 0, axis=1)]
     sc = st[change]
     truth_topics = [
-        ('/truth/segment_angles', ss, joint_states_from_arrays(
+        (topics.TRUTH_SEGMENT_ANGLES, ss, joint_states_from_arrays(
             ss, SEGMENTS, position=q[:, :4], velocity=qd[:, :4])),
-        ('/truth/generalized_coordinates', ss, joint_states_from_arrays(
+        (topics.TRUTH_GENERALIZED_COORDINATES, ss, joint_states_from_arrays(
             ss, Q_NAMES, position=q, velocity=qd)),
-        ('/truth/joint_torques', ss, joint_states_from_arrays(
+        (topics.TRUTH_JOINT_TORQUES, ss, joint_states_from_arrays(
             ss, JOINTS, position=theta, velocity=theta_dot, effort=truth.tau[k])),
-        ('/truth/ground_wrench', st, wrenches_from_arrays(st, WRENCH_FRAME, f_tr, t_tr)),
-        (ANCHORS_TOPIC, sc, joint_states_from_arrays(sc, CONTACT_POINTS,
+        (topics.TRUTH_GROUND_WRENCH, st, wrenches_from_arrays(st, topics.WRENCH_FRAME, f_tr,
+                                                              t_tr)),
+        (topics.TRUTH_CONTACT_ANCHORS, sc, joint_states_from_arrays(sc, CONTACT_POINTS,
                                                      position=anchors[change])),
     ]
-    truth_topics += _muscle_topics(('/truth/muscle_forces', '/truth/muscle_activations',
-                                    '/truth/muscle_excitations'), ss, lmt, vmt, truth.f[k],
+    truth_topics += _muscle_topics((topics.TRUTH_MUSCLE_FORCES, topics.TRUTH_MUSCLE_ACTIVATIONS,
+                                    topics.TRUTH_MUSCLE_EXCITATIONS), ss, lmt, vmt, truth.f[k],
                                    truth.a[k], truth.u[k])
     out = [
-        (ANGLES_TOPIC, sa, joint_states_from_arrays(sa, SEGMENTS, position=obs.angles,
-                                                    allow_nan=nan)),
-        (WRENCH_TOPIC, sw, wrenches_from_arrays(sw, obs.frame_id, f_obs, t_obs,
+        (topics.MOCAP_SEGMENT_ANGLES, sa, joint_states_from_arrays(
+            sa, SEGMENTS, position=obs.angles, allow_nan=nan)),
+        (topics.FORCE_PLATE_WRENCH, sw, wrenches_from_arrays(sw, obs.frame_id, f_obs, t_obs,
                                                 allow_nan=nan)),
-        ('/truth/mocap_bias', sa, joint_states_from_arrays(
+        (topics.TRUTH_MOCAP_BIAS, sa, joint_states_from_arrays(
             sa, SEGMENTS, position=components['angle_bias'])),
-        ('/truth/force_plate_bias', sw, wrenches_from_arrays(sw, obs.frame_id, f_b, t_b)),
+        (topics.TRUTH_FORCE_PLATE_BIAS, sw, wrenches_from_arrays(sw, obs.frame_id, f_b, t_b)),
     ] + (truth_topics if with_truth else [])
     if 'wrench_drift' in components:
         if with_truth:
             f, tq = _wrench_arrays(components['wrench_drift'])
-            out.append(('/truth/force_plate_drift', sw,
+            out.append((topics.TRUTH_FORCE_PLATE_DRIFT, sw,
                         wrenches_from_arrays(sw, obs.frame_id, f, tq)))
         spk_w = np.flatnonzero(np.any(components['wrench_spikes'] != 0, axis=1))
         f, tq = _wrench_arrays(components['wrench_spikes'][spk_w])
-        out.append(('/truth/force_plate_spikes', sw[spk_w],
+        out.append((topics.TRUTH_FORCE_PLATE_SPIKES, sw[spk_w],
                     wrenches_from_arrays(sw[spk_w], obs.frame_id, f, tq)))
         spk_a = np.flatnonzero(np.any(components['angle_spikes'] != 0, axis=1))
-        out.append(('/truth/mocap_spikes', sa[spk_a], joint_states_from_arrays(
+        out.append((topics.TRUTH_MOCAP_SPIKES, sa[spk_a], joint_states_from_arrays(
             sa[spk_a], SEGMENTS, position=components['angle_spikes'][spk_a])))
         drop_a = np.flatnonzero(np.any(components['angle_dropout'] != 0, axis=1))
-        out.append(('/truth/mocap_dropouts', sa[drop_a], joint_states_from_arrays(
+        out.append((topics.TRUTH_MOCAP_DROPOUTS, sa[drop_a], joint_states_from_arrays(
             sa[drop_a], SEGMENTS, position=components['angle_dropout'][drop_a].astype(float))))
         drop_w = np.flatnonzero(components['wrench_dropout'] != 0)
-        out.append(('/truth/force_plate_dropouts', sw[drop_w], joint_states_from_arrays(
+        out.append((topics.TRUTH_FORCE_PLATE_DROPOUTS, sw[drop_w], joint_states_from_arrays(
             sw[drop_w], ('wrench',),
             position=components['wrench_dropout'][drop_w].astype(float)[:, None])))
     return _time_ordered([o for o in out if len(o[1])])

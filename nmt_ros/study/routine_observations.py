@@ -39,8 +39,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from nmt_ros.records import Observations, Truth
 from nmt_ros.study.observations import ObservationSettings
-from nmt_ros.study.trial import Observations, Truth
 
 #: Codes of the dropout masks (``components['angle_dropout']``, ``['wrench_dropout']``).
 DROPOUT_NONE, DROPOUT_OCCLUSION, DROPOUT_NAN = 0, 1, 2

@@ -10,6 +10,7 @@ import numpy as np
 from nmt_ros.io.routine_bag import as_float32, write_routine_bag
 from nmt_ros.model.contact import LIFTOFF_FORCE_N
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.records import Observations, Truth, truth_from_simulation
 from nmt_ros.study.opensim_results import write_motion
 from nmt_ros.study.routine import Routine
 from nmt_ros.study.routine_figures import plot_routine
@@ -17,7 +18,6 @@ from nmt_ros.study.routine_observations import (
     RoutineObservationSettings,
     make_routine_observations,
 )
-from nmt_ros.study.trial import Observations, Truth, truth_from_simulation
 
 
 def routine_truth(model: JumperModel, routine: Routine, rounded: bool = True) -> Truth:
