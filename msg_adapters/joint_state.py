@@ -101,15 +101,19 @@ def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
 
 def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = None,
                              velocity: Any = None, effort: Any = None, *,
-                             frame_id: str = '') -> list[JointState]:
-    """``n`` stamps and ``[n, k]`` arrays -> ``n`` JointState messages (validated at once)."""
+                             frame_id: str = '', allow_nan: bool = False) -> list[JointState]:
+    """``n`` stamps and ``[n, k]`` arrays -> ``n`` JointState messages (validated at once).
+
+    ``allow_nan``: provided values may be NaN (a measurement that is missing, e.g. an
+    occluded segment in a mocap stream); inf is refused all the same."""
     names = check_names(names)
     stamp_ns = stamps_to_ns(stamps)
     n, k = stamp_ns.shape[0], len(names)
     given = {'position': position, 'velocity': velocity, 'effort': effort}
     if all(v is None for v in given.values()):
         raise ValueError('JointState needs at least one of position, velocity, effort')
-    blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None else as_matrix(v, n, k, f, names))
+    blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None
+                  else as_matrix(v, n, k, f, names, allow_nan=allow_nan))
               for f, v in given.items()}
     raw = {f: np.ascontiguousarray(b).tobytes() for f, b in blocks.items()}
     row = 8 * k

@@ -48,12 +48,12 @@ def as_vector(values: Any, n: int, what: str, labels: Sequence[str] | None = Non
 
 
 def as_matrix(values: Any, n: int, k: int, what: str,
-              labels: Sequence[str] | None = None) -> np.ndarray:
-    """A finite float64 ``[n, k]`` array."""
+              labels: Sequence[str] | None = None, allow_nan: bool = False) -> np.ndarray:
+    """A finite float64 ``[n, k]`` array (``allow_nan``: NaN allowed, inf still refused)."""
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape != (n, k):
         raise ValueError(f'{what} must have shape ({n}, {k}), got {arr.shape}')
-    check_finite(arr, what, labels)
+    check_finite(arr, what, labels, allow_nan=allow_nan)
     return arr
 
 

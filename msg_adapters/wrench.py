@@ -62,12 +62,14 @@ def from_wrench_stamped(msg: WrenchStamped, frame_id: str | None = None,
 
 
 def wrenches_from_arrays(stamps: Any, frame_id: str, force: Any,
-                         torque: Any = None) -> list[WrenchStamped]:
-    """``n`` stamps, ``[n, 3]`` force and torque (default zero) -> ``n`` messages."""
+                         torque: Any = None, allow_nan: bool = False) -> list[WrenchStamped]:
+    """``n`` stamps, ``[n, 3]`` force and torque (default zero) -> ``n`` messages
+    (``allow_nan``: NaN values allowed, for missing samples; inf is refused)."""
     stamp_ns = stamps_to_ns(stamps)
     n = stamp_ns.shape[0]
-    f = as_matrix(force, n, 3, 'force', AXES)
-    t = np.zeros((n, 3)) if torque is None else as_matrix(torque, n, 3, 'torque', AXES)
+    f = as_matrix(force, n, 3, 'force', AXES, allow_nan=allow_nan)
+    t = (np.zeros((n, 3)) if torque is None
+         else as_matrix(torque, n, 3, 'torque', AXES, allow_nan=allow_nan))
     rows = np.hstack([f, t]).tolist()
     return [
         WrenchStamped(header=Header(stamp=stamp, frame_id=frame_id), wrench=Wrench(

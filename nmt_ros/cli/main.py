@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'demo': ('nmt_ros.cli.demo', 'replay the shipped bag through the live graph and report'),
     'reproduce': ('nmt_ros.cli.reproduce', "the paper's study offline, with figures"),
     'reference': ('nmt_ros.cli.reference', 'parameter optimisation of the reference jump'),
+    'routine': ('nmt_ros.cli.routine', 'a long synthetic routine (stance, jumps, landings)'),
     'track': ('nmt_ros.cli.track', 'batch NMT (Stage 1 + IVD + Stage 2) on a bag'),
     'ivd': ('nmt_ros.cli.ivd', 'inverse dynamics on OpenSim .sto/.mot files'),
     'export-osim': ('nmt_ros.cli.export_osim', 'write the model as an OpenSim 4 .osim file'),
