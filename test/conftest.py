@@ -49,18 +49,17 @@ _BATCH_SAMPLES: list[int] = []
 
 
 def batch_samples() -> int:
-    """Output samples of batch Stage 1 on the shipped bag (what a full live run must match:
-    every force-plate instant from t = 0 to a few ms after the tracked lift-off)."""
+    """Output samples of Stage 1 run offline on the shipped bag with the graph's default
+    estimator (the moving-horizon estimator fed the whole recording: what a full live run
+    must match, instant for instant)."""
     if not _BATCH_SAMPLES:
         from nmt_ros.io.trial_bag import read_observations
         from nmt_ros.model.jumper import default_model
-        from nmt_ros.tracking.conditioning import condition
-        from nmt_ros.tracking.streaming import track_stage1
+        from nmt_ros.tracking.moving_horizon.estimator import estimate
 
         obs = read_observations(Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump')
-        res = track_stage1(default_model(), condition(obs.t_angles, obs.angles, obs.t_wrench,
-                                               obs.wrench))
-        _BATCH_SAMPLES.append(int(res.t.size))
+        run = estimate(default_model(), obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
+        _BATCH_SAMPLES.append(int(run.refined.t.size))
     return _BATCH_SAMPLES[0]
 
 

@@ -158,7 +158,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        lookahead_s=0.03, substeps=1, idle_flush_s=0.5))
+        estimator='skt', lookahead_s=0.03, substeps=1, idle_flush_s=0.5))
     record = tmp_path / 'rec'
     rec = RecorderNode(context=ros_context, parameter_overrides=params(
         output=str(record), topics=[ANGLES, WRENCH, TORQUES], scan_period_s=0.02))
@@ -252,6 +252,86 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     assert sum(1 for _ in read_raw(record, [ANGLES])) == counts[ANGLES]
 
 
+@pytest.mark.slow
+def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_context):
+    """The default Stage 1 (estimator 'mhe'): a NaN angle is a missing value (reported, then
+    bridged by the dynamics: the estimates go on at every instant), inf, short, misnamed,
+    wrongly framed, duplicate and late samples are rejected and reported; nothing published
+    is non-finite, and the estimates are stamped with force-plate instants."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+    from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+
+    obs, sa, sw = _observations()
+    segs = ['foot', 'shank', 'thigh', 'hat']
+    skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
+        estimator='mhe', idle_flush_s=0.5))
+    probe = rclpy.create_node('probe_mhe', context=ros_context)
+    status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for n in (skel, probe):
+        executor.add_node(n)
+    try:
+        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
+        n_a = 22                                  # 0.175 s of the reference jump
+        n_w = int(np.searchsorted(sw, sa[n_a - 1], side='right'))
+        events = sorted([(sa[i], 0, i) for i in range(n_a)]
+                        + [(sw[i], 1, i) for i in range(n_w)])
+        for stamp, kind, i in events:
+            if kind == 0:
+                msg = to_joint_state(stamp, segs, obs.angles[i])
+                if i in (14, 15):                 # an occlusion of the shank: two samples
+                    msg.position[1] = float('nan')
+                pub_a.publish(msg)
+                if i == 7:
+                    short = to_joint_state(stamp, segs, obs.angles[i])
+                    short.position = short.position[:3]
+                    pub_a.publish(short)
+                    pub_a.publish(to_joint_state(stamp + 1, ['a', 'b', 'c', 'd'], [0] * 4))
+            else:
+                msg = to_planar_wrench(stamp, 'foot_com', obs.wrench[i])
+                if i == 40:
+                    msg.wrench.force.y = float('inf')
+                pub_w.publish(msg)
+                if i == 60:
+                    pub_w.publish(msg)
+                    pub_w.publish(to_planar_wrench(sw[50], 'foot_com', obs.wrench[50]))
+                    pub_w.publish(to_planar_wrench(stamp + 10, 'plate', obs.wrench[i]))
+            executor.spin_once(timeout_sec=0)
+        assert spin_until(executor, lambda: skel.status.state == 'finished', 20.0), \
+            skel.status.reports()[0]
+        spin_until(executor, lambda: False, 0.2)
+        text = status.text('/skeletal_tracker')
+        for words in ('/mocap/segment_angles: non-finite value nan at index 1 (shank): missing',
+                      'non-finite value inf at index 1 (force.y)',
+                      'position has 3 values for 4 names',
+                      "missing ['foot', 'shank', 'thigh', 'hat']",
+                      "frame_id is 'plate', expected 'foot_com'",
+                      'duplicate stamp', 'before the previous sample', 'initialised',
+                      'gap of 1.9 ms after 1700000000.036111111; not filled (bridged by the '
+                      'estimator)'):
+            assert words in text, words
+        said = {r.message for r in status.records if 'non-finite value nan' in r.message}
+        assert len(said) == 1, said                                # once per occlusion
+        assert skel.status.rejected == {ANGLES: 2, WRENCH: 4}
+        assert skel.status.extra['missing_values'] == 2
+    finally:
+        for n in (skel, probe):
+            executor.remove_node(n)
+            n.destroy_node()
+        executor.shutdown()
+    stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in outputs])
+    effort = np.array([m.effort for m in outputs])
+    # refined estimates at every accepted force-plate instant from the first, none invented
+    accepted = np.delete(sw[:n_w], 40)
+    assert np.array_equal(stamps, accepted), (np.setdiff1d(stamps, accepted),
+                                              np.setdiff1d(accepted, stamps))
+    assert np.isfinite(effort).all() and np.abs(effort).max() < 1000.0
+
+
 def test_skeletal_tracker_reports_loss_of_control(ros_context):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -262,7 +342,8 @@ def test_skeletal_tracker_reports_loss_of_control(ros_context):
 
     obs, sa, sw = _observations()
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        lookahead_s=0.02, substeps=1, idle_flush_s=0.3, max_angle_error_deg=0.001))
+        estimator='skt', lookahead_s=0.02, substeps=1, idle_flush_s=0.3,
+        max_angle_error_deg=0.001))
     probe = rclpy.create_node('probe3', context=ros_context)
     status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
     executor = SingleThreadedExecutor(context=ros_context)

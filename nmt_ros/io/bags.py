@@ -725,26 +725,40 @@ def read_arrays(path: str | os.PathLike, topic: str) -> JointStateSeries | Wrenc
 
     Decoding is vectorised over messages that share a layout (``msg_adapters.cdr_arrays``).
     """
-    blobs: list[bytes] = []
-    log_times: list[int] = []
-    msgtype = None
-    for raw in read_raw(path, [topic]):
-        msgtype = raw.msgtype
-        blobs.append(raw.data)
-        log_times.append(raw.log_time_ns)
-    if msgtype is None:
+    return read_topics_arrays(path, [topic])[topic]
+
+
+def read_topics_arrays(path: str | os.PathLike, names: Sequence[str]
+                       ) -> dict[str, JointStateSeries | WrenchSeries]:
+    """:func:`read_arrays` of several topics in one pass over the bag (each chunk is read and
+    decompressed once, whatever the number of topics)."""
+    names = list(dict.fromkeys(names))
+    blobs: dict[str, list[bytes]] = {n: [] for n in names}
+    log_times: dict[str, list[int]] = {n: [] for n in names}
+    types: dict[str, str] = {}
+    for raw in read_raw(path, names):
+        types[raw.topic] = raw.msgtype
+        blobs[raw.topic].append(raw.data)
+        log_times[raw.topic].append(raw.log_time_ns)
+    missing = [n for n in names if n not in types]
+    if missing:
         files = storage_files(path)
-        types = {t.name: t.type for f in files for t in _read_file_summary(f).topics}
-        if topic not in types:
-            raise KeyError(f'topic {topic!r} not in bag {path} (topics: {sorted(types)})')
-        msgtype = types[topic]
-    log = np.asarray(log_times, dtype=np.int64)
-    if msgtype == 'sensor_msgs/msg/JointState':
-        return decode_joint_states(blobs, log)
-    if msgtype == 'geometry_msgs/msg/WrenchStamped':
-        return decode_wrenches(blobs, log)
-    raise ValueError(f'read_arrays supports sensor_msgs/msg/JointState and '
-                     f'geometry_msgs/msg/WrenchStamped; {topic} is {msgtype}')
+        known = {t.name: t.type for f in files for t in _read_file_summary(f).topics}
+        for n in missing:
+            if n not in known:
+                raise KeyError(f'topic {n!r} not in bag {path} (topics: {sorted(known)})')
+            types[n] = known[n]
+    out: dict[str, JointStateSeries | WrenchSeries] = {}
+    for n in names:
+        log = np.asarray(log_times[n], dtype=np.int64)
+        if types[n] == 'sensor_msgs/msg/JointState':
+            out[n] = decode_joint_states(blobs[n], log)
+        elif types[n] == 'geometry_msgs/msg/WrenchStamped':
+            out[n] = decode_wrenches(blobs[n], log)
+        else:
+            raise ValueError(f'read_arrays supports sensor_msgs/msg/JointState and '
+                             f'geometry_msgs/msg/WrenchStamped; {n} is {types[n]}')
+    return out
 
 
 # --------------------------------------------------------------------------- repair

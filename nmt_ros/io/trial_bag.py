@@ -31,7 +31,7 @@ import numpy as np
 from msg_adapters.joint_state import joint_states_from_arrays
 from msg_adapters.wrench import wrenches_from_arrays
 from nmt_ros import topics
-from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_arrays
+from nmt_ros.io.bags import BagInfo, BagWriter, bag_info, read_topics_arrays
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES, SEGMENTS
 from nmt_ros.records import TRIAL_EPOCH_NS, Observations, TrialEstimates, Truth
@@ -146,16 +146,18 @@ def read_observations(path: str | os.PathLike, epoch_ns: int | None = None) -> O
     Trial time 0 is ``nmt.trial_epoch_ns`` when the bag says so, else the first stamp.
     """
     path = Path(path)
-    ang = read_arrays(path, topics.MOCAP_SEGMENT_ANGLES)
-    wr = read_arrays(path, topics.FORCE_PLATE_WRENCH)
+    wanted = [topics.MOCAP_SEGMENT_ANGLES, topics.FORCE_PLATE_WRENCH]
+    has_ankle = topics.MOCAP_ANKLE_POSITION in {t.name for t in bag_info(path).topics}
+    arrays = read_topics_arrays(path, wanted + [topics.MOCAP_ANKLE_POSITION] * has_ankle)
+    ang, wr = arrays[topics.MOCAP_SEGMENT_ANGLES], arrays[topics.FORCE_PLATE_WRENCH]
     if epoch_ns is None:
         epoch_ns = int(_custom(path).get('nmt.trial_epoch_ns',
                                          min(ang.stamp_ns[0], wr.stamp_ns[0])))
     angles = np.column_stack([ang.column(n) for n in SEGMENTS])
     wrench = np.column_stack([wr.force[:, 0], wr.force[:, 1], wr.torque[:, 2]])
     t_ankle = ankle = None
-    if topics.MOCAP_ANKLE_POSITION in {t.name for t in bag_info(path).topics}:
-        an = read_arrays(path, topics.MOCAP_ANKLE_POSITION)
+    if has_ankle:
+        an = arrays[topics.MOCAP_ANKLE_POSITION]
         t_ankle = (an.stamp_ns - epoch_ns) * 1e-9
         ankle = np.column_stack([an.column(n) for n in ANKLE_NAMES])
     return Observations(t_angles=(ang.stamp_ns - epoch_ns) * 1e-9, angles=angles,
@@ -168,8 +170,10 @@ def observation_rates(path: str | os.PathLike) -> tuple[float, float]:
     """(segment-angle rate, force-plate rate) [Hz] of a bag, from its header stamps (the
     median sample interval of each observation topic, rounded to 1 mHz: ``nominal_rate``)."""
     rates = []
-    for topic in (topics.MOCAP_SEGMENT_ANGLES, topics.FORCE_PLATE_WRENCH):
-        stamps = np.sort(read_arrays(Path(path), topic).stamp_ns)
+    pair = (topics.MOCAP_SEGMENT_ANGLES, topics.FORCE_PLATE_WRENCH)
+    arrays = read_topics_arrays(Path(path), pair)
+    for topic in pair:
+        stamps = np.sort(arrays[topic].stamp_ns)
         dt = np.diff(stamps)
         dt = dt[dt > 0]
         if dt.size == 0:
@@ -188,25 +192,34 @@ def read_truth(path: str | os.PathLike) -> Truth:
     path = Path(path)
     custom = _custom(path)
     epoch_ns = int(custom.get('nmt.trial_epoch_ns', TRIAL_EPOCH_NS))
-    gc = read_arrays(path, topics.TRUTH_GENERALIZED_COORDINATES)
+    arrays = read_topics_arrays(path, [
+        topics.TRUTH_GENERALIZED_COORDINATES, topics.TRUTH_JOINT_TORQUES,
+        topics.TRUTH_GROUND_WRENCH, topics.TRUTH_MUSCLE_ACTIVATIONS,
+        topics.TRUTH_MUSCLE_EXCITATIONS, topics.TRUTH_MUSCLE_FORCES])
+    gc = arrays[topics.TRUTH_GENERALIZED_COORDINATES]
     t = (gc.stamp_ns - epoch_ns) * 1e-9
     q = np.column_stack([gc.column(n) for n in Q_NAMES])
     qd = np.column_stack([gc.column(n, 'velocity') for n in Q_NAMES])
 
     def muscles(topic: str, field: str) -> np.ndarray:
-        js = read_arrays(path, topic)
+        js = arrays[topic]
         return np.column_stack([js.column(n, field) for n in MUSCLES])
 
-    jt = read_arrays(path, topics.TRUTH_JOINT_TORQUES)
-    gw = read_arrays(path, topics.TRUTH_GROUND_WRENCH)
+    jt = arrays[topics.TRUTH_JOINT_TORQUES]
+    gw = arrays[topics.TRUTH_GROUND_WRENCH]
+    s = np.column_stack([gw.force[:, 0], gw.force[:, 1], gw.torque[:, 2]])
+    if gw.stamp_ns.size != gc.stamp_ns.size or (gw.stamp_ns != gc.stamp_ns).any():
+        # a truth written at the mocap rate (routines) keeps the wrench at the plate's:
+        # onto the common grid (its instants are plate instants, so this selects samples)
+        t_w = (gw.stamp_ns - epoch_ns) * 1e-9
+        s = np.column_stack([np.interp(t, t_w, s[:, k]) for k in range(3)])
     return Truth(
         t=t, q=q, qd=qd, qdd=np.gradient(qd, t, axis=0),
         a=muscles(topics.TRUTH_MUSCLE_ACTIVATIONS, 'position'),
         u=muscles(topics.TRUTH_MUSCLE_EXCITATIONS, 'position'),
         f=muscles(topics.TRUTH_MUSCLE_FORCES, 'effort'),
         tau=np.column_stack([jt.column(n, 'effort') for n in JOINTS]),
-        s=np.column_stack([gw.force[:, 0], gw.force[:, 1], gw.torque[:, 2]]),
-        point_forces=np.full((t.size, 2, 2), np.nan),
+        s=s, point_forces=np.full((t.size, 2, 2), np.nan),
         x0=np.asarray(json.loads(custom['nmt.contact_anchors_m']), dtype=float),
         liftoff_s=float(custom['nmt.liftoff_s']), info={'epoch_ns': epoch_ns})
 

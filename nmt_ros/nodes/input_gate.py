@@ -43,12 +43,13 @@ class StreamGate:
     ``period_s``: nominal sample period. A sample whose stamp is not after the previous
     accepted one is rejected (duplicate or out of order); stamps before ``not_before_ns``
     are rejected. A spacing above ``gap_factor`` periods is a gap: up to ``max_gap_s`` it is
-    filled with samples linearly interpolated at the nominal period; longer gaps ask the
-    caller to end the trial (``restart``) and start a new one with this sample.
+    filled with samples linearly interpolated at the nominal period (``fill_gaps``; else only
+    reported, for a consumer that bridges gaps itself); longer gaps ask the caller to end the
+    trial (``restart``) and start a new one with this sample.
     """
 
     def __init__(self, name: str, period_s: float, gap_factor: float = 1.5,
-                 max_gap_s: float = 0.5) -> None:
+                 max_gap_s: float = 0.5, fill_gaps: bool = True) -> None:
         if not period_s > 0:
             raise ValueError(f'{name}: period must be > 0 s, got {period_s!r}')
         if not gap_factor > 1:
@@ -57,6 +58,7 @@ class StreamGate:
         self.period_ns = int(round(period_s * NS_PER_S))
         self.gap_factor = float(gap_factor)
         self.max_gap_ns = int(round(max_gap_s * NS_PER_S))
+        self.fill_gaps = bool(fill_gaps)
         self.not_before_ns: int | None = None
         self.last: Sample | None = None
 
@@ -90,7 +92,10 @@ class StreamGate:
                 f'{self.max_gap_ns / 1e9:g} s; the trial ends and a new one starts'))
         filled: list[Sample] = []
         gap = None
-        if dt > self.gap_factor * self.period_ns:
+        if dt > self.gap_factor * self.period_ns and not self.fill_gaps:
+            gap = (f'{self.name}: gap of {dt / 1e6:.1f} ms after {fmt_stamp(last.stamp_ns)}; '
+                   'not filled (bridged by the estimator)')
+        elif dt > self.gap_factor * self.period_ns:
             n_missing = int(round(dt / self.period_ns)) - 1
             for k in range(1, n_missing + 1):
                 s = last.stamp_ns + k * self.period_ns

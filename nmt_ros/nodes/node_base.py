@@ -224,9 +224,11 @@ class TrackerNode(NmtNode):
         self.newest_output_ns = 0
         self.pubs: dict[str, Any] = {}
 
-    def stream_gates(self, periods_s: Mapping[str, float]) -> dict[str, StreamGate]:
-        """One :class:`StreamGate` per input topic (nominal period [s] each)."""
-        return {topic: StreamGate(topic, period, self.gap_factor, self.max_gap_s)
+    def stream_gates(self, periods_s: Mapping[str, float],
+                     fill_gaps: bool = True) -> dict[str, StreamGate]:
+        """One :class:`StreamGate` per input topic (nominal period [s] each; gaps filled by
+        interpolation or, ``fill_gaps`` False, only reported)."""
+        return {topic: StreamGate(topic, period, self.gap_factor, self.max_gap_s, fill_gaps)
                 for topic, period in periods_s.items()}
 
     def listen(self) -> None:

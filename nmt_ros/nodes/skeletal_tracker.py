@@ -41,7 +41,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 
 from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
-from msg_adapters.planar import from_planar_wrench, planar_wrenches_from_arrays
+from msg_adapters.planar import PLANAR, from_planar_wrench, planar_wrenches_from_arrays
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample, TrialClock
@@ -140,7 +140,8 @@ class SkeletalTrackerNode(TrackerNode):
                                     wrench_rate_hz=self.wrench_rate_hz)
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
-            'update_rate_hz': self.update_rate_hz, 'lookahead_s': self.lookahead_s,
+            'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
+            'lookahead_s': self.lookahead_s,
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
@@ -156,9 +157,11 @@ class SkeletalTrackerNode(TrackerNode):
                     if self.estimator == 'mhe' else None)
         self.events_seen = 0
         self.masked = 0
+        self.in_gap: dict[str, bool] = {}
         self.clock = TrialClock(self.epoch_ns)
         self.gates = self.stream_gates({MOCAP_SEGMENT_ANGLES: 1 / self.angle_rate_hz,
-                                        FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz})
+                                        FORCE_PLATE_WRENCH: 1 / self.wrench_rate_hz},
+                                       fill_gaps=self.estimator == 'skt')
         self.polled_until = -np.inf
         self.first_pending = np.inf
         if self.estimator == 'skt':
@@ -202,11 +205,19 @@ class SkeletalTrackerNode(TrackerNode):
         """Every accepted sample into the estimator; publish what its updates produced (the
         updates run on data time: when they run does not depend on arrival timing)."""
         add = self.mhe.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.mhe.add_wrench
+        names = SEGMENTS if topic == MOCAP_SEGMENT_ANGLES else PLANAR
         for sample in samples:
-            missing = int(np.isnan(sample.values).sum())
-            if missing:
-                self.masked += missing
+            gaps = np.flatnonzero(np.isnan(sample.values))
+            if gaps.size:
+                self.masked += gaps.size
                 self.status.extra['missing_values'] = self.masked
+                if not self.in_gap.get(topic):      # said once per run of missing samples
+                    where = ', '.join(f'{i} ({names[i]})' for i in gaps)
+                    self.status.event(WARN, f'{topic}: non-finite value nan at index {where}: '
+                                      'missing, bridged by the estimator',
+                                      t=self.clock.t(sample.stamp_ns))
+                    self.notify()
+            self.in_gap[topic] = bool(gaps.size)
             try:
                 add(self.clock.t(sample.stamp_ns), sample.values)
             except ValueError as exc:          # a sample later than the update it belongs to

@@ -124,6 +124,8 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     from nmt_ros.io.trial_bag import read_observations
     from nmt_ros.model.jumper import default_model
     from nmt_ros.tracking.conditioning import ConditioningSettings, condition
+    from nmt_ros.tracking.moving_horizon.estimator import estimate
+    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
     from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
     from nmt_ros.tracking.skeletal_tracker import SKTSettings
     from nmt_ros.tracking.streaming import initial_activations, track_stage1
@@ -133,11 +135,24 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     obs = read_observations(source)
     cs = ConditioningSettings(angle_cutoff_hz=_float(sk, 'setting.angle_cutoff_hz', 10.0),
                               force_cutoff_hz=_float(sk, 'setting.force_cutoff_hz', 50.0))
-    skt = SKTSettings()
-    skt = skt.with_(substeps=int(_float(sk, 'setting.substeps', skt.substeps)),
-                    bias_rate=_float(sk, 'setting.bias_rate', skt.bias_rate))
-    res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, cs),
-                       skt, _float(sk, 'setting.wrench_rate_hz', 1080.0))
+    if sk.get('setting.estimator', 'skt') == 'mhe':
+        # the same estimator object the node runs, fed the whole recording (offline = live)
+        d = MovingHorizonSettings()
+        mhe = d.with_(lag_s=_float(sk, 'setting.lag_s', d.lag_s),
+                      window_s=_float(sk, 'setting.window_s', d.window_s),
+                      update_rate_hz=_float(sk, 'setting.update_rate_hz', d.update_rate_hz),
+                      iterations=int(_float(sk, 'setting.iterations', d.iterations)),
+                      angle_rate_hz=_float(sk, 'setting.angle_rate_hz', d.angle_rate_hz),
+                      wrench_rate_hz=_float(sk, 'setting.wrench_rate_hz', d.wrench_rate_hz))
+        res = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
+                       mhe).refined
+    else:
+        skt = SKTSettings()
+        skt = skt.with_(substeps=int(_float(sk, 'setting.substeps', skt.substeps)),
+                        bias_rate=_float(sk, 'setting.bias_rate', skt.bias_rate))
+        res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench,
+                                            obs.wrench, cs),
+                           skt, _float(sk, 'setting.wrench_rate_hz', 1080.0))
     out = {'t': res.t, 'tau': res.tau, 'status': res.status, 'epoch_ns': obs.info['epoch_ns']}
     if res.ok:
         th, thd, thdd = (model.batch(model.joint_angles, x)[0] for x in (res.q, res.qd, res.qdd))
@@ -149,6 +164,27 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
             window_length=_float(mu, 'setting.window_length_s', 0.1),
             window_stride=stride if stride > 0 else None)
         out.update(f=s2.f, t2=s2.t)
+    return out
+
+
+def _phase_summary(model: Any, truth: Any, recording: Path, epoch: int, t: np.ndarray,
+                   tau: np.ndarray, forces: tuple[np.ndarray, np.ndarray] | None,
+                   low_topic: str | None) -> dict[str, Any]:
+    """Refined (and low-latency) estimates against the truth, phase by phase (muscle forces
+    scored at the torques' instants where both were recorded)."""
+    from nmt_ros.study.phase_scores import phase_scores
+
+    f = None
+    if forces is not None:
+        stamps = epoch + np.rint(t * 1e9).astype(np.int64)
+        pos = np.clip(np.searchsorted(forces[0], stamps), 0, forces[0].size - 1)
+        both = forces[0][pos] == stamps
+        t, tau, f = t[both], tau[both], forces[1][pos[both]]
+    out = {'refined': phase_scores(model, truth, t, tau, f)}
+    if low_topic is not None:
+        lt = read_arrays(recording, low_topic)
+        out['low_latency'] = phase_scores(model, truth, (lt.stamp_ns - epoch) * 1e-9,
+                                          _columns(lt, JOINTS, 'effort'))
     return out
 
 
@@ -170,6 +206,11 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     summary['latency_ms'] = {
         'joint_torques': latency_ms(topic_times(recording, topics.SKELETAL_JOINT_TORQUES), obs),
         'muscle_forces': latency_ms(topic_times(recording, topics.MUSCLE_FORCES), obs)}
+    low = topics.SKELETAL_LOW_LATENCY[topics.SKELETAL_JOINT_TORQUES]
+    recorded = {t.name for t in bag_info(recording).topics}
+    if low in recorded:
+        summary['latency_ms']['low_latency_joint_torques'] = latency_ms(
+            topic_times(recording, low), obs)
     summary['cpu'] = {n: {'share': round(_float(statuses.get(n, {}), 'cpu_share'), 3),
                           'cpu_s': round(_float(statuses.get(n, {}), 'cpu_s_active'), 3),
                           'wall_s': round(_float(statuses.get(n, {}), 'wall_s_active'), 3)}
@@ -217,6 +258,8 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
         err = _rms(tau[contact] - truth.tau[idx[contact]])
         summary['vs_truth'] = {'torque_rms_nm': _named(JOINTS, err, 2),
                                'torque_rms_pct_peak': _named(JOINTS, 100 * err / peaks, 2)}
+        summary['phases'] = _phase_summary(model, truth, recording, epoch, t, tau, forces,
+                                           low if low in recorded else None)
         if forces is not None:
             tf = (forces[0] - epoch) * 1e-9
             fidx = np.clip(np.rint(np.interp(tf, truth.t, np.arange(truth.t.size))).astype(int),
@@ -262,6 +305,11 @@ def format_summary(s: Mapping[str, Any]) -> str:
             lines.append('muscle forces vs truth (RMS, contact phase, N / % F0): ' + ', '.join(
                 f'{m} {vt["muscle_force_rms_n"][m]:.0f}/{vt["muscle_force_rms_pct_f0"][m]:.1f}'
                 for m in MUSCLES))
+    for kind, scores in s.get('phases', {}).items():
+        from nmt_ros.study.phase_scores import format_phase_scores
+
+        lines.append(f'{kind} estimates vs truth by phase (RMS):')
+        lines += ['  ' + x for x in format_phase_scores(scores).splitlines()]
     vb = s.get('vs_batch')
     if vb:
         line = ('live graph vs batch trackers: torques ' + ', '.join(

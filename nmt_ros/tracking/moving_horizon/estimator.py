@@ -65,9 +65,11 @@ class EstimateBlock:
 
     def part(self, kind: str, rows: slice) -> EstimateBlock:
         """The rows ``rows`` as a block of ``kind``."""
-        return EstimateBlock(kind=kind, plate=self.plate, **{
-            f: getattr(self, f)[rows] for f in ('t', 'q', 'qd', 'qdd', 'tau', 'theta',
-                                                 'theta_dot', 'f', 'a', 'u', 's')})
+        return EstimateBlock(kind=kind, plate=self.plate,
+                             **{f: getattr(self, f)[rows] for f in BLOCK_FIELDS})
+
+
+BLOCK_FIELDS = ('t', 'q', 'qd', 'qdd', 'tau', 'theta', 'theta_dot', 'f', 'a', 'u', 's')
 
 
 @dataclass
@@ -241,7 +243,8 @@ class MovingHorizonEstimator:
             if not self._start(t_u):
                 return []
         blocks = self._emit(t_u)
-        self._slide(t_u)
+        if self.window is not None:
+            self._slide(t_u)
         return blocks
 
     def _to_relinearise(self) -> np.ndarray:
@@ -332,12 +335,39 @@ class MovingHorizonEstimator:
             return []
         kinds = list(ready)
         both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
+        why = self._implausible(both)
+        if why is not None:
+            # never published: the instants are reported as lost and the window restarts
+            self.events.append(EstimatorEvent(
+                'error', t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
+                're-initialising from the newest observations',
+                {'from_s': float(both.t[0]), 'to_s': float(both.t[-1])}))
+            self.window = None
+            self.restarts += 1
+            if not final:
+                self._start(t_u)
+            return []
         blocks, start = [], 0
         for k in kinds:
             n = ready[k].size
             blocks.append(both.part(k, slice(start, start + n)))
             start += n
         return blocks
+
+    def _implausible(self, b: EstimateBlock) -> str | None:
+        """Why estimates cannot be published (None: they can): non-finite values, joint
+        torques above ``max_torque_nm`` or musculotendon forces above ``max_muscle_force_f0``
+        times F0."""
+        st = self.settings
+        bad = [f for f in BLOCK_FIELDS if not np.isfinite(getattr(b, f)).all()]
+        if bad:
+            return f'non-finite {", ".join(bad)}'
+        if np.abs(b.tau).max(initial=0.0) > st.max_torque_nm:
+            return f'joint torque {np.abs(b.tau).max():.0f} N m'
+        ratio = np.abs(b.f) / self.model.p.muscles.f0
+        if ratio.max(initial=0.0) > st.max_muscle_force_f0:
+            return f'muscle force {ratio.max():.1f} F0'
+        return None
 
     def estimates(self, kind: str, t: np.ndarray) -> EstimateBlock:
         """Evaluate the window at instants t (inside it)."""

@@ -91,6 +91,8 @@ class MovingHorizonSettings:
     max_rate_rad_s: float = 150.0      # segment rates
     max_force_bw: float = 15.0         # ground force magnitude
     max_translation_m: float = 3.0     # the ankle from the origin
+    max_torque_nm: float = 2000.0      # a published joint torque (the paper tracker's limit)
+    max_muscle_force_f0: float = 3.0   # a published musculotendon force, in units of F0
 
     def with_(self, **kw: object) -> MovingHorizonSettings:
         return replace(self, **kw)
