@@ -94,7 +94,8 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
             n.destroy_node()
         executor.shutdown()
     assert obs.exit_code == 0 and skel.exit_code == 0 and muscle.exit_code == 0
-    assert skel.status.state == 'finished' and muscle.status.state == 'finished'
+    assert skel.status.state == 'finished' and muscle.status.state == 'finished', (
+        muscle.status.reports()[0].message, muscle.status.reports()[0].values)
     assert skel.status.rejected == {} and muscle.status.rejected == {}
     info = {t.name: t.message_count for t in bag_info(out).topics}
     assert info[ANGLES] == 30 and info[WRENCH] == 269
