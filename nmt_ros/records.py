@@ -66,6 +66,19 @@ class Observations:
     t_ankle: np.ndarray | None = None   # [n3] s
     ankle: np.ndarray | None = None     # [n3, 2] m
 
+    def before(self, t_end: float) -> Observations:
+        """The observations up to ``t_end`` [s] (inclusive), on the same trial time."""
+        def cut(t: np.ndarray | None, x: np.ndarray | None) -> tuple:
+            if t is None:
+                return None, None
+            keep = np.asarray(t) <= t_end
+            return np.asarray(t)[keep], np.asarray(x)[keep]
+        ta, a = cut(self.t_angles, self.angles)
+        tw, w = cut(self.t_wrench, self.wrench)
+        tk, k = cut(self.t_ankle, self.ankle)
+        return Observations(t_angles=ta, angles=a, t_wrench=tw, wrench=w,
+                            frame_id=self.frame_id, info=dict(self.info), t_ankle=tk, ankle=k)
+
     def after(self, t_start: float) -> Observations:
         """The observations from ``t_start`` [s] on, on a trial time that starts there (the
         samples' times minus t_start); ``info['t_offset_s']`` accumulates the shift."""

@@ -109,6 +109,7 @@ class CollocationWeights:
     rho: float
     tau_act: float
     tau_deact: float
+    release_sd: float = 0.0     # a point lifted by more than this x sd_height lets go
 
 
 def collocation_groups(C: np.ndarray, first: int, grid: KnotGrid, segments: np.ndarray,
@@ -183,8 +184,12 @@ def contact_group(seg: np.ndarray, B: np.ndarray, s: np.ndarray, kin: np.ndarray
     share = load_shares(s, kin)
     load = np.maximum(share * s[:, 1:2], 0.0)                       # [P, 2] N
     ramp = np.clip((s[:, 1:2] - w.free_load) / (w.full_load - w.free_load), 0.0, 1.0)
-    weight = np.sqrt(np.minimum(share / w.full_share, 1.0) * ramp)
+    held_by = np.minimum(share / w.full_share, 1.0) * ramp
     y = kin[:, [1, 3]]
+    if w.release_sd > 0:   # redescending: the lift above the sinkage, in sd_height units
+        lift = np.maximum(y + share * s[:, 1:2] / w.stiffness, 0.0) / w.sd_height
+        held_by = held_by / (1.0 + (lift / w.release_sd) ** 2) ** 2
+    weight = np.sqrt(held_by)
     xdot = kin[:, [4, 6]]
     r = np.concatenate([weight * (y + load / w.stiffness) / w.sd_height,
                         weight * xdot / w.sd_slip], axis=1)             # [P, 4]

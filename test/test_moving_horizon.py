@@ -166,7 +166,7 @@ def test_kernel_equals_the_independent_numpy_residuals(stance, model):
         full_share=st.contact_full_share, stiffness=model.p.contact.k_y,
         wrench_accel_sd=st.wrench_accel_sd(model.p.body_weight), w_u=st.excitation_weight,
         w_du=st.excitation_rate_weight, rho=st.bound_weight, tau_act=model.p.muscles.tau_act,
-        tau_deact=model.p.muscles.tau_deact)
+        tau_deact=model.p.muscles.tau_deact, release_sd=st.contact_release_sd)
     mass_diag = np.diag(np.asarray(model.mass_matrix(np.zeros(6))))
     fn = PointMap(collocation_function(model, np.maximum(st.dynamics_sd * mass_diag,
                                                          st.dynamics_sd_floor)))
@@ -252,3 +252,40 @@ def test_occlusions_nan_samples_and_spikes_are_bridged(stance, model):
     after = ref.t >= 0.2
     err = np.abs(ref.tau[after] - held.tau[0]).mean(0)
     assert (err < np.array([6.0, 9.0, 9.0])).all(), err
+
+
+def test_a_consumer_that_fell_behind_skips_to_the_newest_data(stance, model):
+    """Data handed over in one 0.8 s lump (a live node that was starved) exceed
+    max_backlog_s: the estimator says so, re-initialises at the newest data instead of
+    working through the backlog, and then tracks on; fed sample by sample it never skips."""
+    held, obs, run = stance
+    assert not [e for e in run.events if 'fell behind' in e.message]
+    est = MovingHorizonEstimator(model)
+    blocks = []
+    order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
+                   + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
+    for t, kind, i in order:
+        (est.add_angles if kind == 0 else est.add_wrench)(
+            t, obs.angles[i] if kind == 0 else obs.wrench[i])
+        if t < 0.15 or t > 0.95:          # in time, then a lump from 0.15 to 0.95 s
+            blocks += est.poll()
+    blocks += est.finish()
+    skips = [e for e in est.events if 'fell behind' in e.message]
+    assert len(skips) == 1 and skips[0].values['behind_s'] > 0.5, skips
+    refined = [b for b in blocks if b.kind == 'refined']
+    t = np.concatenate([b.t for b in refined])
+    tau = np.concatenate([b.tau for b in refined])
+    assert t.max() == obs.t_wrench[-1]
+    skipped = (t > 0.2) & (t < 0.8)
+    assert not skipped.any()          # the backlog was skipped, not worked through
+    # after the skip it is the estimator started afresh on the data from there on
+    t_new = float(skips[0].message.split('skipping to t = ')[1].split(' s')[0])
+    st = MovingHorizonSettings()
+    fa = obs.t_angles >= t_new - st.start_window_s - 1e-9
+    fw = obs.t_wrench >= t_new - st.start_window_s - 1e-9
+    fresh = estimate(model, obs.t_angles[fa], obs.angles[fa], obs.t_wrench[fw],
+                     obs.wrench[fw]).refined
+    after = t >= t_new - 1e-9
+    assert np.array_equal(t[after], fresh.t[fresh.t >= t_new - 1e-9])
+    assert np.allclose(tau[after], fresh.tau[fresh.t >= t_new - 1e-9], rtol=1e-6,
+                       atol=1e-6)

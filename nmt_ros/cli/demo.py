@@ -17,7 +17,7 @@ from pathlib import Path
 import shutil
 import sys
 
-from nmt_ros.cli.launch import default_bag, format_run, run_graph
+from nmt_ros.cli.launch import default_bag, format_run, replay_timeout_s, run_graph
 
 OWNED = ('recording', 'logs', 'summary.json')
 
@@ -28,7 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--rate', type=float, default=1.0, help='replay speed factor')
     parser.add_argument('--params', default=None, metavar='FILE',
                         help='graph parameters (default config/nmt_graph.yaml)')
-    parser.add_argument('--timeout', type=float, default=120.0, help='give up after S seconds')
+    parser.add_argument('--duration', type=float, default=0.0, metavar='S',
+                        help='replay only the first S seconds of the bag (default: all)')
+    parser.add_argument('--timeout', type=float, default=None,
+                        help='give up after S seconds (default: the replay time + 120 s)')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,8 +47,10 @@ def run(args: argparse.Namespace) -> int:
     recording = out / 'recording'
     print(f'nmt demo: replaying {bag} through the live graph (rate {args.rate:g}), '
           f'recording to {recording} ...', flush=True)
+    timeout = args.timeout or replay_timeout_s(bag, args.rate, args.duration)
+    extra = {'observation_publisher': {'duration_s': args.duration}} if args.duration else None
     result = run_graph(bag=bag, rate=args.rate, record=recording, params=args.params,
-                       log_dir=out / 'logs', timeout_s=args.timeout)
+                       log_dir=out / 'logs', timeout_s=timeout, extra_params=extra)
     print(format_run(result).splitlines()[0])
     for problem in result.problems:
         print(f'  problem: {problem}')

@@ -319,16 +319,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--clock', action='store_true', help='publish /clock during the replay')
     parser.add_argument('--log-dir', default=None, help='node logs and the merged parameters '
                         '(default: a new temporary folder)')
-    parser.add_argument('--timeout', type=float, default=120.0,
-                        help='give up after this many seconds (default 120)')
+    parser.add_argument('--duration', type=float, default=0.0, metavar='S',
+                        help='replay only the first S seconds of the bag (default: all)')
+    parser.add_argument('--timeout', type=float, default=None,
+                        help='give up after this many seconds (default: the replay time + '
+                             '120 s)')
+
+
+def replay_timeout_s(bag: str | os.PathLike | None, rate: float, duration_s: float = 0.0,
+                     margin_s: float = 120.0) -> float:
+    """Wall time a graph run may take: the replayed span at ``rate`` plus ``margin_s``."""
+    from nmt_ros.io.bags import bag_info
+
+    info = bag_info(Path(bag) if bag is not None else default_bag())
+    span = info.duration_ns * 1e-9
+    if duration_s > 0:
+        span = min(span, duration_s)
+    return span / rate + margin_s
 
 
 def run(args: argparse.Namespace) -> int:
     if args.record and Path(args.record).exists() and any(Path(args.record).iterdir()):
         print(f'error: {args.record} exists and is not empty', file=sys.stderr)
         return 2
+    timeout = args.timeout or replay_timeout_s(args.bag, args.rate, args.duration)
+    extra = {'observation_publisher': {'duration_s': args.duration}} if args.duration else None
     result = run_graph(bag=args.bag, rate=args.rate, record=args.record, params=args.params,
-                       log_dir=args.log_dir, timeout_s=args.timeout, publish_clock=args.clock)
+                       log_dir=args.log_dir, timeout_s=timeout, publish_clock=args.clock,
+                       extra_params=extra)
     print(format_run(result))
     return result.returncode
 

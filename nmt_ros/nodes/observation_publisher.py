@@ -70,8 +70,11 @@ class ObservationPublisherNode(NmtNode):
                                low=0.0, high=3600.0)
         self.ack_timeout_s = p('ack_timeout_s', 10.0, 'wait this long at the end for '
                                'reliable subscribers to acknowledge [s]', low=0.0, high=3600.0)
+        self.duration_s = p('duration_s', 0.0, 'replay only the samples stamped within this '
+                            'long of the first [s] (0 = the whole bag)', low=0.0, high=1e7)
         self.status.settings = {'bag': self.bag, 'rate': self.rate,
-                                'publish_clock': self.publish_clock}
+                                'publish_clock': self.publish_clock,
+                                'duration_s': self.duration_s}
         try:
             info = bag_info(self.bag)
             wanted = [t for t in info.topics if t.name in set(self.topics)]
@@ -99,7 +102,11 @@ class ObservationPublisherNode(NmtNode):
             self.status.state = 'replaying'
             self.status.mark_active()
             self.publish_status()
-            stats = self.player.play(prefetched(read_raw(self.bag, self.topics)),
+            messages = read_raw(self.bag, self.topics)
+            if self.duration_s > 0:
+                end_ns = min(self.first_stamps.values()) + round(self.duration_s * 1e9)
+                messages = (m for m in messages if header_stamp_ns(m.data) <= end_ns)
+            stats = self.player.play(prefetched(messages),
                                      rate=self.rate,
                                      clock_hz=self.clock_hz if self.publish_clock else None,
                                      stop=self._stop, ack_timeout_s=0.0)

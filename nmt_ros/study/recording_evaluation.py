@@ -133,6 +133,10 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     sk, mu = settings.get('skeletal_tracker', {}), settings.get('muscle_tracker', {})
     model = default_model()
     obs = read_observations(source)
+    duration = _float(settings.get('observation_publisher', {}), 'setting.duration_s', 0.0)
+    if duration > 0:                 # the replay's part only (the publisher's rule)
+        t_end = min(obs.t_angles[0], obs.t_wrench[0]) + duration + 1e-10
+        obs = obs.before(t_end)
     cs = ConditioningSettings(angle_cutoff_hz=_float(sk, 'setting.angle_cutoff_hz', 10.0),
                               force_cutoff_hz=_float(sk, 'setting.force_cutoff_hz', 50.0))
     if sk.get('setting.estimator', 'skt') == 'mhe':

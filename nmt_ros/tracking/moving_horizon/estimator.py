@@ -158,12 +158,36 @@ class MovingHorizonEstimator:
     def poll(self) -> list[EstimateBlock]:
         """Run every update the data now allow; the estimates that became available."""
         blocks: list[EstimateBlock] = []
+        self._catch_up()
         while self.state != 'finished':
             t_u = self._next_update_time()
             if t_u is None or not self._ready(t_u):
                 break
             blocks += self._update(t_u)
         return blocks
+
+    def _catch_up(self) -> None:
+        """Data waiting for more than ``max_backlog_s`` (a live consumer that fell behind,
+        e.g. on a starved machine): skip to the newest data and re-initialise there, saying
+        so, instead of falling further behind. Fed sample by sample (offline, or a live
+        consumer that keeps up) this never happens."""
+        st = self.settings
+        if self.window is None or self.next_update is None or st.max_backlog_s <= 0:
+            return
+        lo = min(self.newest)
+        behind = lo - self.next_update
+        if behind <= st.max_backlog_s:
+            return
+        first = self.grid.t_ref + st.start_window_s
+        k = int(np.floor((lo - first) / self.period + 1e-9))
+        t_new = first + k * self.period
+        self.events.append(EstimatorEvent(
+            'error', self.next_update, f'fell behind the data by {behind:.2f} s (more than '
+            f'max_backlog_s = {st.max_backlog_s:g} s): skipping to t = {t_new:.4f} s and '
+            're-initialising there', {'behind_s': float(behind)}))
+        self.window = None
+        self.restarts += 1
+        self.next_update = t_new
 
     def finish(self) -> list[EstimateBlock]:
         """End of the data: update to the last sample and emit everything left."""
@@ -423,6 +447,7 @@ class MovingHorizonEstimator:
         # first iterations, and carried over it would keep the first updates from following
         # the new data
         self.damping = st.damping
+        self.round_robin = 0
         self.window = w
         self.state = 'tracking'
         self.unhealthy_since = None

@@ -20,7 +20,9 @@ class MovingHorizonSettings:
 
     # --- trajectories and timing
     knot_rate_hz: float = 240.0        # B-spline knots per second (q, a, s, b)
-    update_rate_hz: float = 120.0      # Gauss-Newton updates per second of data
+    update_rate_hz: float = 60.0       # Gauss-Newton updates per second of data (each costs
+                                       # about the same at 60 and 120 Hz; 60 Hz halves the
+                                       # CPU at equal accuracy on the routine)
     lag_s: float = 0.05                # refined estimate: this far behind the newest data
     window_s: float = 0.1              # data span of the window (>= lag); older data is
                                        # marginalised into the arrival cost
@@ -39,8 +41,11 @@ class MovingHorizonSettings:
     # max(dynamics_sd x M_ii, dynamics_sd_floor), i.e. an acceleration error [rad/s^2, m/s^2]
     # (M_ii is constant in absolute-angle coordinates) but at least the floor [N m, N]: the
     # foot (M_11 = 0.03 kg m^2) is nearly massless, its row a moment balance, and its
-    # acceleration not worth resolving (3 N m at 100 rad/s^2)
-    dynamics_sd: float = 0.1
+    # acceleration not worth resolving (3 N m at 100 rad/s^2). At 0.1 the estimate left
+    # the truth even on noise-free routine data (a knee-flexion mode growing 2x per 25 ms
+    # from 0.25 s of quiet stance); 1.0 is stable there and, measured on the first 20 s
+    # of bags/routine (bench/bench_estimator.py), cut the torque errors by a third
+    dynamics_sd: float = 1.0
     dynamics_sd_floor: float = 0.5
     # kinematic contact: a loaded contact point (its share of the vertical force, from the
     # centre of pressure) stays at the springs' sinkage (load / stiffness) and does not slide
@@ -49,20 +54,28 @@ class MovingHorizonSettings:
     contact_full_load_bw: float = 0.15  # points are held once the vertical force is this [BW]
     contact_free_load_bw: float = 0.05  # and free below this (airborne; above the noise)
     contact_full_share: float = 0.2    # ... in proportion to their share of it up to this
-    contact_release_sd: float = 0.0    # ... unless the motion lifts them by more than this
-                                       # many contact_height_sd_m (0: never let go)
+    contact_release_sd: float = 3.0    # ... unless the motion lifts them by more than this
+                                       # many contact_height_sd_m (0: never let go; at 0 a
+                                       # rising heel stayed held: quiet-stance torques on the
+                                       # routine 2.2/1.9/3.8 -> 1.3/1.2/3.3 % of peak at 3)
     share_free: bool = False           # differentiate the load shares (else held, IRLS)
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
     # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
     wrench_cutoff_hz: float = 40.0
-    excitation_weight: float = 10.0    # w_u: cost w_u int |u|^2 dt [1/s]
-    excitation_rate_weight: float = 0.1  # w_du: cost w_du int |du/dt|^2 dt [s]
+    # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
+    # 0.1 the HAT followed the mocap noise (+-0.5 deg at 3-5 Hz, hip torque +-40 N m in
+    # quiet stance); w_du 10 and w_u 50 gave the best torques on the routine (quiet stance
+    # hip 8 -> 4 % of peak, low-latency hip 17 -> 5 %)
+    excitation_weight: float = 50.0    # w_u: cost w_u int |u|^2 dt [1/s]
+    excitation_rate_weight: float = 10.0  # w_du: cost w_du int |du/dt|^2 dt [s]
     bound_weight: float = 1e4          # penalty on excitations outside [0, 1] (per unit^2 s)
     # the force plate's error model (offsets b [N, N, N m], COP offset d [m]): its prior SD at
     # a start and its drift (random walk) per sqrt(s). The moment offset and the COP offset
     # read alike in stance (Fy ~ body weight): the offset drifts slowly (flights pin it), the
     # COP offset carries what scales with the load
-    plate_sd: tuple[float, ...] = (20.0, 20.0, 2.0, 0.02)
+    # COP offset prior 5 mm: at 20 mm the estimator explained a push-off's heel rise away
+    # as a 66 mm COP offset (foot kept flat, 19 deg off; ankle torque 45 vs 160 N m)
+    plate_sd: tuple[float, ...] = (20.0, 20.0, 2.0, 0.005)
     plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.05, 0.005)
     # process noise on the arrival state (the control points the prior covers), per sqrt(s):
     # angles [deg], positions [m], activations, wrench [N] (None: off). It keeps the prior
@@ -83,6 +96,8 @@ class MovingHorizonSettings:
     start_iterations: int = 40
     start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
     # --- health (loss of control)
+    max_backlog_s: float = 0.5         # data waiting this long: skip to the newest (live
+                                       # only: a consumer that fell behind; 0 = never)
     max_cost_per_row: float = 25.0     # mean normalised residual^2 of the newest data
     recover_after_s: float = 0.05      # that long above the limit -> re-initialise
     flight_force_bw: float = 0.05      # estimated vertical force below this: airborne
