@@ -99,9 +99,10 @@ def test_graph_in_process_tracks_the_bag_and_records_everything(ros_context, tmp
     assert skel.status.rejected == {} and muscle.status.rejected == {}
     info = {t.name: t.message_count for t in bag_info(out).topics}
     assert info[ANGLES] == 30 and info[WRENCH] == 269
-    for topic in SKELETAL_OUT + MUSCLE_OUT:
-        assert info[topic] == skel.status.published.get(topic, muscle.status.published.get(
-            topic)) == batch_samples(), topic
+    for topic in SKELETAL_OUT:
+        assert info[topic] == skel.status.published[topic] == batch_samples(), topic
+    for topic in MUSCLE_OUT:   # Stage 2 bridges instants Stage 1 withheld
+        assert info[topic] == muscle.status.published[topic] >= batch_samples(), topic
     # every estimate is stamped with a force-plate instant of the trial
     wrench = read_arrays(out, WRENCH)
     torques = read_arrays(out, TORQUES)
@@ -159,7 +160,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        estimator='skt', lookahead_s=0.03, substeps=1, idle_flush_s=0.5))
+        estimator='skt', lookahead_s=0.03, substeps=1, idle_flush_s=2.0))
     record = tmp_path / 'rec'
     rec = RecorderNode(context=ros_context, parameter_overrides=params(
         output=str(record), topics=[ANGLES, WRENCH, TORQUES], scan_period_s=0.02))
@@ -221,8 +222,7 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
                       'position has 3 values for 4 names',
                       "missing ['foot', 'shank', 'thigh', 'hat']",
                       "frame_id is 'plate', expected 'foot_com'",
-                      'duplicate stamp', 'before the previous sample',
-                      'wrench: gap of 100.9 ms', 'angles: gap of 108.3 ms',
+                      'duplicate stamp', 'wrench: gap of 100.9 ms', 'angles: gap of 108.3 ms',
                       'filled with 108 interpolated samples', 'publisher gone'):
             assert words in text, words
         assert skel.status.rejected == {ANGLES: 3, WRENCH: 4}
@@ -269,7 +269,7 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        estimator='mhe', idle_flush_s=0.5))
+        estimator='mhe', idle_flush_s=2.0))
     probe = rclpy.create_node('probe_mhe', context=ros_context)
     status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -311,12 +311,14 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
                       'position has 3 values for 4 names',
                       "missing ['foot', 'shank', 'thigh', 'hat']",
                       "frame_id is 'plate', expected 'foot_com'",
-                      'duplicate stamp', 'before the previous sample', 'initialised',
+                      'duplicate stamp', 'initialised',
                       'gap of 1.9 ms after 1700000000.036111111; not filled (bridged by the '
                       'estimator)'):
             assert words in text, words
         said = {r.message for r in status.records if 'non-finite value nan' in r.message}
         assert len(said) == 1, said                                # once per occlusion
+        # (the late sample is 'before the previous sample' or, taken in one batch with its
+        # original and sorted by stamp, a 'duplicate stamp': rejected either way)
         assert skel.status.rejected == {ANGLES: 2, WRENCH: 4}
         assert skel.status.extra['missing_values'] == 2
     finally:

@@ -1,9 +1,10 @@
-"""``nmt demo [--out DIR]``: the shipped jump through the live ROS 2 graph, recorded, reported.
+"""``nmt demo [--out DIR]``: the shipped routine through the live ROS 2 graph, recorded, reported.
 
-What ``make demo`` runs: ``nmt launch`` on ``bags/reference_jump`` at real time with every
+What ``make demo`` runs: ``nmt launch`` on ``bags/routine`` (60 s) at real time with every
 topic recorded to ``DIR/recording`` (a rosbag2 MCAP bag), then a report read back from the
 recording (``nmt_ros.study.recording_evaluation``): jump height of the tracked motion against
-the truth, joint-torque and muscle-force errors against the truth, the agreement with the batch
+the truth, joint-torque and muscle-force errors against the truth phase by phase (quiet stance,
+movement, flight, landing) with their coverage, the agreement with the batch
 trackers, latency from an observation's publication to its estimates (p50/p99), each node's
 CPU share, and messages published vs recorded. ``DIR/summary.json`` holds the numbers,
 ``DIR/logs`` the node logs and the parameters used. Outputs of a previous demo in ``DIR``
@@ -24,7 +25,8 @@ OWNED = ('recording', 'logs', 'summary.json')
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', default='demo_out', help='output folder (default demo_out)')
-    parser.add_argument('--bag', default=None, help='bag to replay (default bags/reference_jump)')
+    parser.add_argument('--bag', default=None, help='bag to replay (default bags/routine: a '
+                        '60 s routine of stance, drop and countermovement jumps)')
     parser.add_argument('--rate', type=float, default=1.0, help='replay speed factor')
     parser.add_argument('--params', default=None, metavar='FILE',
                         help='graph parameters (default config/nmt_graph.yaml)')
@@ -43,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
             shutil.rmtree(target)
         elif target.exists():
             target.unlink()
-    bag = Path(args.bag) if args.bag else default_bag()
+    bag = Path(args.bag) if args.bag else default_bag().parent / 'routine'
     recording = out / 'recording'
     print(f'nmt demo: replaying {bag} through the live graph (rate {args.rate:g}), '
           f'recording to {recording} ...', flush=True)

@@ -289,6 +289,12 @@ class TrackerNode(NmtNode):
         batch.sort(key=lambda item: item[:3])
         for *_, topic, msg in batch:
             self.on_input(topic, msg)
+        if batch:
+            self.batch_done()
+
+    def batch_done(self) -> None:
+        """Hook: a batch of inputs went through :meth:`on_input` (a subclass may defer work
+        to here, e.g. to see how far behind the data it is)."""
 
     # ------------------------------------------------------------------ hooks
     def parse(self, topic: str, msg: Any) -> tuple[int, np.ndarray]:

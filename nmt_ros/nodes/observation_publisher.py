@@ -17,6 +17,7 @@ trackers flush when they have seen that many) and, with ``exit_when_finished``, 
 from __future__ import annotations
 
 from collections.abc import Sequence
+import itertools
 from pathlib import Path
 import threading
 import time
@@ -105,7 +106,9 @@ class ObservationPublisherNode(NmtNode):
             messages = read_raw(self.bag, self.topics)
             if self.duration_s > 0:
                 end_ns = min(self.first_stamps.values()) + round(self.duration_s * 1e9)
-                messages = (m for m in messages if header_stamp_ns(m.data) <= end_ns)
+                # (read in log-time order: stop reading at the first sample past the end)
+                messages = itertools.takewhile(
+                    lambda m: header_stamp_ns(m.data) <= end_ns, messages)
             stats = self.player.play(prefetched(messages),
                                      rate=self.rate,
                                      clock_hz=self.clock_hz if self.publish_clock else None,

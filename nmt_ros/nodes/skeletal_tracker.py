@@ -224,6 +224,16 @@ class SkeletalTrackerNode(TrackerNode):
                 self.status.reject(topic, f'{topic}: {exc}')
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
         self.first_pending = min(self.first_pending, received)
+        if not self.taking:          # a callback per message; else at the batch's end
+            self._poll_mhe()
+
+    def batch_done(self) -> None:
+        if self.mhe is not None and self.tracking:
+            self._poll_mhe()
+
+    def _poll_mhe(self) -> None:
+        """Run the updates the data allow (a batch that left the estimator more than
+        max_backlog_s behind makes it skip ahead, reported); publish; end-of-stream check."""
         blocks = self.mhe.poll()
         if blocks:
             received, self.first_pending = self.first_pending, np.inf

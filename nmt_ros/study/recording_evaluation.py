@@ -160,11 +160,19 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     out = {'t': res.t, 'tau': res.tau, 'status': res.status, 'epoch_ns': obs.info['epoch_ns']}
     if res.ok:
         th, thd, thdd = (model.batch(model.joint_angles, x)[0] for x in (res.q, res.qd, res.qdd))
-        a0, _ = initial_activations(model, th[0], res.tau[0], thd[0])
+        t2, tau2 = res.t, res.tau
+        rate = _float(mu, 'setting.input_rate_hz', _float(sk, 'setting.wrench_rate_hz', 1080.0))
+        n = int(round((res.t[-1] - res.t[0]) * rate)) + 1
+        if n != res.t.size:   # instants Stage 1 withheld: bridged linearly, as the node's gate
+            t2 = res.t[0] + np.arange(n) / rate
+            tau2, th, thd, thdd = (np.column_stack([np.interp(t2, res.t, x[:, k])
+                                                    for k in range(x.shape[1])])
+                                   for x in (res.tau, th, thd, thdd))
+        a0, _ = initial_activations(model, th[0], tau2[0], thd[0])
         stride = _float(mu, 'setting.window_stride_s', 0.01)
         stage2 = load_stage2_settings(saturation=mu.get('setting.saturation', 'plan'))
         s2 = NeuromuscularTracker(model, stage2).track(
-            res.t, res.tau, th, thd, thdd, a0, mode='windowed',
+            t2, tau2, th, thd, thdd, a0, mode='windowed',
             window_length=_float(mu, 'setting.window_length_s', 0.1),
             window_stride=stride if stride > 0 else None)
         out.update(f=s2.f, t2=s2.t)
