@@ -10,6 +10,11 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOCALHOST_ONLY ?= 1
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export PYTHONDONTWRITEBYTECODE := 1
+# One BLAS/OpenMP thread per process: our factorisations are small, and a multithreaded
+# OpenBLAS spinning on 2 shared cores made the estimator's banded solves ~100x slower.
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
+export MKL_NUM_THREADS ?= 1
 
 .PHONY: venv demo test lint reproduce bench clean-venv
 

@@ -18,6 +18,9 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ['ROS_LOCALHOST_ONLY'] = '1'
 os.environ['ROS_DOMAIN_ID'] = os.environ.get('NMT_TEST_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ['AMENT_PREFIX_PATH'] = sys.prefix
+# one BLAS thread (set before numpy loads OpenBLAS): see the Makefile
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')
 
 
 @pytest.fixture

@@ -11,6 +11,12 @@ import importlib
 import os
 import sys
 
+# One BLAS/OpenMP thread per process unless the user chose (before numpy loads): the
+# estimators' factorisations are small, and a multithreaded OpenBLAS on 2 shared cores was
+# measured ~100x slower on them (nmt launch passes the same to the node processes).
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')
+
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     'demo': ('nmt_ros.cli.demo', 'replay the shipped bag through the live graph and report'),
