@@ -151,12 +151,10 @@ class SceneBuilder:
         self.history: dict[str, deque[tuple[int, bytes]]] = {}
         self.next_ns: int | None = None
         self.seen_estimates = source == 'estimates'
+        chosen = SOURCES.values() if source == 'auto' else [SOURCES[source]]
+        #: Every topic the builder may use.
+        self.topics = frozenset(t for s in chosen for t in (s.coordinates, s.forces, s.wrench))
 
-    @property
-    def topics(self) -> set[str]:
-        """Every topic the builder may use."""
-        chosen = SOURCES.values() if self.source == 'auto' else [SOURCES[self.source]]
-        return {t for s in chosen for t in (s.coordinates, s.forces, s.wrench)}
 
     def active_source(self) -> SceneSource:
         if self.source != 'auto':
