@@ -143,13 +143,16 @@ def main() -> int:
     from nmt_ros.cli.main import ros_environment_defaults
 
     ros_environment_defaults()
+    # a domain of our own: other graphs on this machine (domain 0 by default) would otherwise
+    # be heard by ours (their messages recorded, ours counted twice)
+    os.environ.setdefault('ROS_DOMAIN_ID', str(101 + os.getpid() % 100))
     if args.quiet_start > 0:
         from bench_latency import padded_bag
 
         tmp = tempfile.TemporaryDirectory(prefix='nmt_bench_view_bag_')
         args.bag = padded_bag(args.bag, args.quiet_start, Path(tmp.name) / 'padded')
-    print(f'bag {args.bag}, rate {args.rate:g}, {args.repeat} rounds of {MODES}; load average '
-          f'{os.getloadavg()[0]:.1f}')
+    print(f'bag {args.bag}, rate {args.rate:g}, {args.repeat} rounds of {MODES}, ROS domain '
+          f'{os.environ["ROS_DOMAIN_ID"]}; load average {os.getloadavg()[0]:.1f}')
     print(f'{"mode":>12} | torques p50 p99 | forces p50 p99 | lossless | client got/missing '
           f'(scenes) | viewer CPU | wall s')
     runs = []

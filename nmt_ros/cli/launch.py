@@ -365,6 +365,9 @@ def run(args: argparse.Namespace) -> int:
     view = None if not args.view else {
         'host': args.view_host, 'port': args.view_port,
         'scene_rate_hz': float(args.scene_rate), 'scene_source': args.scene_source}
+    if view is not None:
+        print(f'live view: ws://{args.view_host}:{args.view_port} (Foxglove or Lichtblick; '
+              f'layout {config_path("foxglove_layout.json")})', flush=True)
     result = run_graph(bag=args.bag, rate=args.rate, record=args.record, params=args.params,
                        log_dir=args.log_dir, timeout_s=timeout, publish_clock=args.clock,
                        extra_params=extra, view=view)

@@ -53,16 +53,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_bag(args: argparse.Namespace) -> int:
-    from nmt_ros.view.bag_replay import replay_bag
+    from nmt_ros.model.subject import load_subject_model
+    from nmt_ros.study.body_scene import BodyDescription
+    from nmt_ros.view.bag_replay import bag_topics, replay_bag
     from nmt_ros.view.scene import SCENE_TOPIC, SceneBuilder
     from nmt_ros.view.server import ViewServer
 
-    scene = SceneBuilder(rate_hz=args.scene_rate, source=args.scene_source)
+    body = BodyDescription(load_subject_model(args.bag))     # the bag's subject, if it has one
+    scene = SceneBuilder(body, rate_hz=args.scene_rate, source=args.scene_source)
     server = ViewServer(host=args.view_host, port=args.view_port, scene=scene)
     stop = threading.Event()
     try:
-        from nmt_ros.view.bag_replay import bag_topics
-
         server.advertise_all(bag_topics(args.bag))
         print(f'view: ws://{args.view_host}:{server.port} serving {args.bag}', flush=True)
         if args.wait_for_client is not None:
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.bag is not None:
         try:
             return _run_bag(args)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:   # no bag, a port in use, ...
             print(f'error: {exc}', file=sys.stderr)
             return 2
     from nmt_ros.nodes.viewer import main as viewer_main
