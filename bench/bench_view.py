@@ -113,13 +113,16 @@ def one_run(bag: Path, mode: str, rate: float) -> dict:
         if not (rec / 'metadata.yaml').exists():
             return {'mode': mode, 'ok': False, 'problems': res.problems}
         s = graph_summary(rec, None, batch=False)
-        viewer = final_statuses(rec).get('viewer', {})
+        statuses = final_statuses(rec)
+        viewer = statuses.get('viewer', {})
+        graph_cpu_s = sum(float(v.get('cpu_s_active', 0.0)) for n, v in statuses.items()
+                          if n != 'viewer')
         recorded = {t.name: t.message_count for t in bag_info(rec).topics}
     out = {'mode': mode, 'ok': res.returncode == 0 and s['lossless'], 'wall_s': res.wall_s,
            'torques': s['latency_ms']['joint_torques'], 'forces': s['latency_ms']['muscle_forces'],
            'cpu': {n: v['share'] for n, v in s['cpu'].items()}
            | {'viewer': float(viewer.get('cpu_share', 'nan'))},
-           'viewer_cpu_s': float(viewer.get('cpu_s_active', 'nan')),
+           'viewer_cpu_s': float(viewer.get('cpu_s_active', 'nan')), 'graph_cpu_s': graph_cpu_s,
            'messages': sum(n for t, n in recorded.items() if t != '/nmt/status'),
            'problems': res.problems}
     if client is not None:
@@ -173,8 +176,10 @@ def main() -> int:
     viewed = [r for r in runs if r['mode'] != 'plain' and 'viewer_cpu_s' in r]
     if viewed:
         per = [1e6 * r['viewer_cpu_s'] / r['messages'] for r in viewed]
+        share = [100 * r['viewer_cpu_s'] / r['graph_cpu_s'] for r in viewed]
         print(f'viewer CPU per graph message: median {np.median(per):.0f} us '
-              f'(range {min(per):.0f}-{max(per):.0f})')
+              f'(range {min(per):.0f}-{max(per):.0f}); viewer CPU time / the other nodes\' '
+              f'{np.median(share):.0f} % (range {min(share):.0f}-{max(share):.0f})')
     print(f'\nmedians over {args.repeat} runs (load average now {os.getloadavg()[0]:.1f})')
     base = None
     for mode in MODES:
