@@ -1,7 +1,7 @@
 """``nmt render BAG --out FILE.mp4|gif``: the body scene of a bag as a movie.
 
     nmt render BAG --out FILE.gif [--start S] [--duration S] [--fps F]
-               [--source auto|estimates|truth]
+               [--source auto|estimates|truth] [--subject BAG|SUBJECT.yaml]
 
 The same scene as the live view (``nmt_ros.study.body_scene``: stick figure, muscles coloured
 and widened by force, the ground force at the centre of pressure) drawn with matplotlib,
@@ -28,6 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--dpi', type=int, default=80, help='resolution (80: 640x320 px)')
     parser.add_argument('--source', choices=('auto', 'estimates', 'truth'), default='auto',
                         help='draw the estimates, the truth, or estimates when present (auto)')
+    parser.add_argument('--subject', default=None, metavar='BAG|SUBJECT.yaml',
+                        help="the subject's model (default: the bag's subject.yaml, else the "
+                             'shipped jumper; an `nmt track` estimates bag has none: give the '
+                             'observation bag)')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.monotonic()
     try:
         out = render_bag(args.bag, args.out, fps=args.fps, start_s=args.start,
-                         duration_s=args.duration, source=args.source, dpi=args.dpi)
+                         duration_s=args.duration, source=args.source, dpi=args.dpi,
+                         subject=args.subject)
     except (OSError, ValueError, KeyError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

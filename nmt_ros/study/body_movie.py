@@ -216,9 +216,10 @@ def render_movie(data: MovieData, out: str | os.PathLike, *, body: BodyDescripti
 
 def render_bag(bag: str | os.PathLike, out: str | os.PathLike, *, fps: float = 30.0,
                start_s: float = 0.0, duration_s: float | None = None, source: str = 'auto',
-               dpi: int = 80) -> Path:
-    """``nmt render``: the movie of a bag with its subject's model (``BAG/subject.yaml``)."""
+               dpi: int = 80, subject: str | os.PathLike | None = None) -> Path:
+    """``nmt render``: the movie of a bag with its subject's model (``subject``: a bag folder
+    or subject YAML; default the bag's own ``subject.yaml``, else the shipped jumper)."""
     data = load_movie_data(bag, fps=fps, start_s=start_s, duration_s=duration_s, source=source)
-    body = BodyDescription(load_subject_model(bag))
+    body = BodyDescription(load_subject_model(bag if subject is None else subject))
     return render_movie(data, out, body=body, fps=fps, dpi=dpi,
                         title=f'{Path(bag).name}: {data.source}')
