@@ -18,8 +18,14 @@ _ENCAPSULATION = 4
 
 
 def header_stamp_ns(blob: bytes) -> int:
-    """Header stamp [ns] of one CDR message whose first field is a ``std_msgs/Header``."""
-    return int(header_stamps_ns([blob])[0])
+    """Header stamp [ns] of one CDR message whose first field is a ``std_msgs/Header``
+    (``struct``, a few us: the live view reads one per message)."""
+    if len(blob) < _ENCAPSULATION + 8:
+        raise ValueError(f'CDR message too short to carry a header ({len(blob)} bytes)')
+    sec, nsec = struct.unpack_from('<iI' if blob[1] == 1 else '>iI', blob, _ENCAPSULATION)
+    if nsec >= NS_PER_S:
+        raise ValueError(f'CDR message: nanosec {nsec} out of range (not a Header?)')
+    return sec * NS_PER_S + nsec
 
 
 def header_stamps_ns(blobs: Sequence[bytes]) -> np.ndarray:

@@ -1,12 +1,12 @@
 """The import layers hold (README "Layout"), read from the source with ``ast`` (nothing runs).
 
 Lowest first: model (and osim beside it), records and topics -> tracking -> msg_adapters ->
-io -> study -> nodes -> cli. A module may import its own layer and the layers below, never
-one above (``io`` builds on ``msg_adapters``, never the reverse). ``model`` imports nothing
-of ours but itself; ``topics`` nothing at all. No rclpy, ROS message or interface package in
-model, osim, records, topics, tracking or study: they run without ROS. Every ``import``
-statement counts, at module level or inside a function. ``bench/`` and ``test/`` may import
-anything.
+io -> study -> view -> nodes -> cli. A module may import its own layer and the layers below,
+never one above (``io`` builds on ``msg_adapters``, never the reverse). ``model`` imports
+nothing of ours but itself; ``topics`` nothing at all. No rclpy, ROS message or interface
+package in model, osim, records, topics, tracking, study or view: they run without ROS.
+Every ``import`` statement counts, at module level or inside a function. ``bench/`` and
+``test/`` may import anything.
 """
 from __future__ import annotations
 
@@ -26,8 +26,9 @@ LAYER = {
     'msg_adapters': 2,
     'nmt_ros.io': 3,
     'nmt_ros.study': 4,
-    'nmt_ros.nodes': 5,
-    'nmt_ros.cli': 6,
+    'nmt_ros.view': 5,   # the live view's server (foxglove-sdk); the viewer node feeds it
+    'nmt_ros.nodes': 6,
+    'nmt_ros.cli': 7,
 }
 #: Within the bottom layer, what each package may import of ours.
 BOTTOM = {
@@ -39,7 +40,7 @@ BOTTOM = {
 }
 #: Packages that must run without ROS.
 ROS_FREE = ('nmt_ros.model', 'nmt_ros.osim', 'nmt_ros.records', 'nmt_ros.topics',
-            'nmt_ros.tracking', 'nmt_ros.study', 'nmt_ros')
+            'nmt_ros.tracking', 'nmt_ros.study', 'nmt_ros.view', 'nmt_ros')
 ROS_MODULE = re.compile(r'^(rclpy|rcl_interfaces|rosidl\w*|builtin_interfaces|\w+_msgs|'
                         r'\w+_interfaces)(\.|$)')
 

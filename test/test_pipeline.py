@@ -61,12 +61,17 @@ def test_estimates_bag_is_stamped_with_observation_time(reproduced):
     est = out / 'estimates'
     topics = {t.name: t.message_count for t in bag_info(est).topics}
     for topic in ('/nmt/skeletal/joint_torques', '/nmt/skeletal/segment_angles',
+                  '/nmt/skeletal/generalized_coordinates',
                   '/nmt/skeletal/ground_wrench', '/nmt/muscle/forces',
                   '/nmt/muscle/activations', '/nmt/muscle/excitations'):
         assert topics.get(topic, 0) > 100, topic
     obs_stamps = read_arrays(BAG, '/force_plate/wrench').stamp_ns
     tq = read_arrays(est, '/nmt/skeletal/joint_torques')
     assert set(tq.stamp_ns) <= set(obs_stamps)          # every estimate at an observation time
+    gc = read_arrays(est, '/nmt/skeletal/generalized_coordinates')
+    seg = read_arrays(est, '/nmt/skeletal/segment_angles')
+    np.testing.assert_array_equal(gc.stamp_ns, tq.stamp_ns)
+    np.testing.assert_array_equal(gc.position[:, :4], seg.position)   # q = [angles, ankle]
     forces = read_arrays(est, '/nmt/muscle/forces')
     assert forces.names == MUSCLES and np.isfinite(forces.effort).all()
     # Muscles pull: the DeGroote fibre damping (and its force-velocity curve beyond the

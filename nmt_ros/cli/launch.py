@@ -1,6 +1,7 @@
 """``nmt launch``: the whole node graph, one process per node, until the replay is processed.
 
     nmt launch [--bag BAG] [--rate R] [--record OUT_BAG_DIR] [--params FILE] [--clock]
+               [--view [--view-host ADDR] [--view-port PORT]]
 
 Starts ``recorder`` (with ``--record``), ``muscle_tracker``, ``skeletal_tracker`` and
 ``observation_publisher`` as separate processes (``python -m nmt_ros.nodes.<node> --ros-args
@@ -12,7 +13,9 @@ shortens the reliable heartbeat so end-of-replay acknowledgements take ms, not 3
 Readiness propagates upstream: each tracker opens its inputs only when its outputs have
 their subscribers (``wait_for``), and the replay starts only when the
 observation topics have theirs (``expected_subscribers``), so no message is published before
-its consumers exist.
+its consumers exist. With ``--view`` the ``viewer`` node (Foxglove WebSocket server,
+``nmt_ros.nodes.viewer``) is one of those consumers: its server listens and has advertised
+every graph topic before the replay starts, so a viewer that connected first misses nothing.
 
 The run ends when the observation publisher has replayed everything (and every reliable
 subscriber acknowledged it), the trackers have flushed their last look-ahead/window and
@@ -45,7 +48,7 @@ import yaml
 from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
-NODES = ('recorder', 'muscle_tracker', 'skeletal_tracker', 'observation_publisher')
+NODES = ('viewer', 'recorder', 'muscle_tracker', 'skeletal_tracker', 'observation_publisher')
 TRACKERS = ('muscle_tracker', 'skeletal_tracker')
 RECORDER_NICE = 5
 
@@ -119,8 +122,9 @@ def bag_parameters(bag: str | os.PathLike) -> dict[str, dict[str, Any]]:
 
 def graph_parameters(base: Mapping[str, Any], *, bag: str | os.PathLike | None = None,
                      rate: float | None = None, record: str | os.PathLike | None = None,
-                     publish_clock: bool = False) -> dict[str, Any]:
-    """``base`` (node sections) plus the run's choices and the readiness chain."""
+                     publish_clock: bool = False, view: bool = False) -> dict[str, Any]:
+    """``base`` (node sections) plus the run's choices and the readiness chain (``view``:
+    the viewer subscribes to every data topic, so each has one subscriber more)."""
     params = copy.deepcopy(dict(base))
     obs = _section(params, 'observation_publisher')
     if bag is not None:
@@ -134,20 +138,23 @@ def graph_parameters(base: Mapping[str, Any], *, bag: str | os.PathLike | None =
     if publish_clock:
         obs['publish_clock'] = True
     recording = record is not None
-    obs['expected_subscribers'] = 2 if recording else 1
+    others = int(recording) + int(view)      # consumers besides the trackers
+    obs['expected_subscribers'] = 1 + others
     obs['exit_when_finished'] = True
     skel = _section(params, 'skeletal_tracker')
-    # joint torques feed the muscle tracker (and the recorder); the rest only the recorder
-    skel['wait_for'] = [f'{SKELETAL_OUTPUTS[0]}={2 if recording else 1}'] + (
-        [f'{t}=1' for t in SKELETAL_OUTPUTS[1:]] if recording else [])
+    # joint torques feed the muscle tracker (and the recorder, the viewer); the rest only those
+    skel['wait_for'] = [f'{SKELETAL_OUTPUTS[0]}={1 + others}'] + (
+        [f'{t}={others}' for t in SKELETAL_OUTPUTS[1:]] if others else [])
     skel['exit_when_finished'] = True
     muscle = _section(params, 'muscle_tracker')
-    muscle['wait_for'] = [f'{t}=1' for t in MUSCLE_OUTPUTS] if recording else ['']
+    muscle['wait_for'] = [f'{t}={others}' for t in MUSCLE_OUTPUTS] if others else ['']
     muscle['exit_when_finished'] = True
     if recording:
         _section(params, 'recorder')['output'] = str(Path(record).resolve())
     else:
         params.pop('recorder', None)
+    if not view:
+        params.pop('viewer', None)
     return params
 
 
@@ -227,19 +234,24 @@ def run_graph(*, bag: str | os.PathLike | None = None, rate: float = 1.0,
               params: str | os.PathLike | None = None,
               log_dir: str | os.PathLike | None = None, timeout_s: float = 120.0,
               publish_clock: bool = False, extra_params: Mapping[str, Any] | None = None,
-              ) -> GraphRun:
-    """Run the graph once (see the module docstring); never raises on node failures."""
+              view: Mapping[str, Any] | None = None) -> GraphRun:
+    """Run the graph once (see the module docstring); never raises on node failures.
+    ``view``: the viewer node's parameters (host, port, ...) to serve the live view."""
     bag = Path(bag) if bag is not None else default_bag()
     log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix='nmt_launch_'))
     log_dir.mkdir(parents=True, exist_ok=True)
     base = load_params(params or config_path('nmt_graph.yaml'))
     merged = graph_parameters(base, bag=bag, rate=rate, record=record,
-                              publish_clock=publish_clock)
+                              publish_clock=publish_clock, view=view is not None)
+    if view is not None:
+        subject = _section(merged, 'skeletal_tracker').get('subject_file', '')
+        _section(merged, 'viewer').update({'subject_file': subject, **view})
     for node, values in (extra_params or {}).items():
         _section(merged, node).update(values)
     params_file = log_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(merged, sort_keys=False), encoding='utf-8')
-    names = [n for n in NODES if n != 'recorder' or record is not None]
+    names = [n for n in NODES if (n != 'recorder' or record is not None)
+             and (n != 'viewer' or view is not None)]
     env = ros_environment()
     procs: dict[str, subprocess.Popen] = {}
     logs = {}
@@ -272,7 +284,8 @@ def run_graph(*, bag: str | os.PathLike | None = None, rate: float = 1.0,
     except KeyboardInterrupt:
         interrupted = True
         problems.append('interrupted')
-        _stop(procs, tuple(n for n in names if n != 'recorder'), grace_s=10.0)
+        _stop(procs, tuple(n for n in names if n not in ('recorder', 'viewer')), grace_s=10.0)
+        _stop(procs, ('viewer',), grace_s=5.0)
         _stop(procs, ('recorder',), grace_s=30.0)
     finally:
         signal.signal(signal.SIGTERM, previous_term)
@@ -324,6 +337,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--timeout', type=float, default=None,
                         help='give up after this many seconds (default: the replay time + '
                              '120 s)')
+    parser.add_argument('--view', action='store_true', help='serve the live view (Foxglove '
+                        'WebSocket) from before the replay starts; see `nmt view`')
+    from nmt_ros.cli.view import add_view_options
+
+    add_view_options(parser)
 
 
 def replay_timeout_s(bag: str | os.PathLike | None, rate: float, duration_s: float = 0.0,
@@ -344,9 +362,15 @@ def run(args: argparse.Namespace) -> int:
         return 2
     timeout = args.timeout or replay_timeout_s(args.bag, args.rate, args.duration)
     extra = {'observation_publisher': {'duration_s': args.duration}} if args.duration else None
+    view = None if not args.view else {
+        'host': args.view_host, 'port': args.view_port,
+        'scene_rate_hz': float(args.scene_rate), 'scene_source': args.scene_source}
+    if view is not None:
+        print(f'live view: ws://{args.view_host}:{args.view_port} (Foxglove or Lichtblick; '
+              f'layout {config_path("foxglove_layout.json")})', flush=True)
     result = run_graph(bag=args.bag, rate=args.rate, record=args.record, params=args.params,
                        log_dir=args.log_dir, timeout_s=timeout, publish_clock=args.clock,
-                       extra_params=extra)
+                       extra_params=extra, view=view)
     print(format_run(result))
     return result.returncode
 

@@ -32,6 +32,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'bag': ('nmt_ros.cli.bag', 'bag tools: info, play, reindex'),
     'import-lab': ('nmt_ros.cli.import_lab',
                    'a lab recording (IK/GRF .mot, TRC, C3D) as an observation bag + subject'),
+    'view': ('nmt_ros.cli.view', 'live view (Foxglove WebSocket) of the graph or of a bag'),
+    'render': ('nmt_ros.cli.render', 'a movie (mp4/gif) of a bag: body, muscles, ground force'),
 }
 
 

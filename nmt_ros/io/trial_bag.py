@@ -238,6 +238,8 @@ def estimate_messages(model: JumperModel, estimates: TrialEstimates,
             st, JOINTS, position=theta, velocity=theta_dot, effort=skt.tau)),
         (topics.SKELETAL_SEGMENT_ANGLES, st, joint_states_from_arrays(
             st, SEGMENTS, position=skt.q[:, :4], velocity=skt.qd[:, :4])),
+        (topics.SKELETAL_GENERALIZED_COORDINATES, st, joint_states_from_arrays(
+            st, Q_NAMES, position=skt.q, velocity=skt.qd)),     # as the live graph: the body
         (topics.SKELETAL_GROUND_WRENCH, st,
          wrenches_from_arrays(st, topics.WRENCH_FRAME, f, tq)),
     ]
