@@ -36,8 +36,8 @@ from nmt_ros.io.trial_bag import read_observations  # noqa: E402
 from nmt_ros.model.jumper import default_model  # noqa: E402
 from nmt_ros.model.parameters import JOINTS  # noqa: E402
 from nmt_ros.tracking.conditioning import ConditioningSettings, condition  # noqa: E402
-from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker  # noqa: E402
 from nmt_ros.tracking.skeletal_tracker import SKTSettings  # noqa: E402
+from nmt_ros.tracking.stage2 import NeuromuscularTracker  # noqa: E402
 from nmt_ros.tracking.streaming import (  # noqa: E402
     Stage1Stream,
     Stage2Stream,

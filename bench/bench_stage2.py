@@ -6,7 +6,7 @@ Reference: the shipped reference jump (a maximum-height jump found by parameter 
 prime movers at u = 1 much of the push-off). Stage 2 gets the TRUE joint torques and joint
 kinematics (theta_ddot from the model's dynamics at the true state), a0 from the first torque
 sample (``nmt_ros.model.squat.rest_activations``, no truth), and is compared with the true muscle
-forces. Falls back to the tests' synthetic squat jump if the bag is missing. Tables:
+forces (the bag must hold /truth/*). Tables:
   1. full horizon, saturation 'plan' (default) and 'clip' (the paper): torque RMS per joint
      over the contact phase (% of the joint's peak), forces vs truth per muscle (RMS N, % F0,
      correlation, peak f/F0 vs true), saturation fractions, interior-point iterations, CPU,
@@ -29,40 +29,42 @@ import time
 import numpy as np
 
 from nmt_ros.model.squat import rest_activations
-from nmt_ros.tracking import neuromuscular_tracker as nt
-from nmt_ros.tracking import riccati as rc
+from nmt_ros.tracking.stage2 import (
+    MuscleState,
+    NeuromuscularTracker,
+    Stage2Result,
+    load_stage2_settings,
+)
+from nmt_ros.tracking.stage2.bounded_qp import solve_bounded_lqt
+from nmt_ros.tracking.stage2.lqt import backward_sweep, prepare_grid
 
 DEFAULT_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
 
 def load_reference(bag: Path, model) -> dict:
     """Stage-2 inputs and truth: t, tau, theta, theta_dot, theta_ddot, a0, f_true, ..."""
-    if bag.exists():
-        from nmt_ros.io.trial_bag import read_truth
+    if not bag.exists():
+        raise SystemExit(f'no bag at {bag} (the shipped reference jump is bags/reference_jump)')
+    from nmt_ros.io.trial_bag import read_truth
 
-        tr = read_truth(bag)
-        theta, = model.batch(model.joint_angles, tr.q)
-        J = np.column_stack([model.call(model.joint_angles, e)[0] for e in np.eye(6)])
-        x = np.hstack([tr.q, tr.qd, tr.a])
-        xdot, = model.batch(model.musculoskeletal_ode, x, tr.u, np.tile(tr.x0, (tr.t.size, 1)))
-        with open(bag / 'reference.json') as fh:
-            height = json.load(fh)['actual']['jump_height_m']
-        return {'name': f'reference jump ({bag.name}), true torques', 't': tr.t, 'tau': tr.tau,
-                'theta': theta, 'theta_dot': tr.qd @ J.T, 'theta_ddot': xdot[:, 6:12] @ J.T,
-                'a_true': tr.a, 'f_true': tr.f, 'contact': tr.t <= tr.liftoff_s, 'truth': tr,
-                'height_m': height}
-    s = nt.synthetic_reference(dt=1e-3)
-    return {'name': 'synthetic squat jump (tests), 1 kHz', 't': s.t, 'tau': s.tau_ref,
-            'theta': s.theta, 'theta_dot': s.theta_dot, 'theta_ddot': s.theta_ddot,
-            'a_true': s.a_true, 'f_true': s.f_true, 'contact': np.ones(s.t.size, dtype=bool),
-            'truth': None, 'height_m': None}
+    tr = read_truth(bag)
+    theta, = model.batch(model.joint_angles, tr.q)
+    J = np.column_stack([model.call(model.joint_angles, e)[0] for e in np.eye(6)])
+    x = np.hstack([tr.q, tr.qd, tr.a])
+    xdot, = model.batch(model.musculoskeletal_ode, x, tr.u, np.tile(tr.x0, (tr.t.size, 1)))
+    with open(bag / 'reference.json') as fh:
+        height = json.load(fh)['actual']['jump_height_m']
+    return {'name': f'reference jump ({bag.name}), true torques', 't': tr.t, 'tau': tr.tau,
+            'theta': theta, 'theta_dot': tr.qd @ J.T, 'theta_ddot': xdot[:, 6:12] @ J.T,
+            'a_true': tr.a, 'f_true': tr.f, 'contact': tr.t <= tr.liftoff_s, 'truth': tr,
+            'height_m': height}
 
 
 def inputs(ref: dict) -> tuple[np.ndarray, ...]:
     return ref['t'], ref['tau'], ref['theta'], ref['theta_dot'], ref['theta_ddot']
 
 
-def contact_rms(res: nt.Stage2Result, contact: np.ndarray) -> np.ndarray:
+def contact_rms(res: Stage2Result, contact: np.ndarray) -> np.ndarray:
     """Torque-tracking RMS over the contact phase / the joint's peak |tau_ref| there [3]."""
     e = res.tracking_error[contact]
     return np.sqrt(np.mean(e ** 2, axis=0)) / np.abs(res.tau_ref[contact]).max(axis=0)
@@ -78,7 +80,7 @@ def best_of(fn, repeat: int) -> tuple[float, object]:
     return best, out
 
 
-def nmt_jump(tracker: nt.NeuromuscularTracker, ref: dict, res: nt.Stage2Result) -> float:
+def nmt_jump(tracker: NeuromuscularTracker, ref: dict, res: Stage2Result) -> float:
     """Jump height [m] of the skeleton driven by the Stage-2 excitations from the true state."""
     from nmt_ros.study.pipeline import simulate_stage2
 
@@ -146,8 +148,8 @@ def sl_mask(ref: dict, step: int) -> np.ndarray:
     return ref['contact'][::step]
 
 
-def windows(tracker: nt.NeuromuscularTracker, ref: dict, a0: np.ndarray,
-            full: nt.Stage2Result, repeat: int, lengths: tuple[float, ...]) -> None:
+def windows(tracker: NeuromuscularTracker, ref: dict, a0: np.ndarray,
+            full: Stage2Result, repeat: int, lengths: tuple[float, ...]) -> None:
     t = ref['t']
     h = t[1] - t[0]
     coarse = max(1, int(round((1 / 120) / h)))
@@ -168,7 +170,7 @@ def windows(tracker: nt.NeuromuscularTracker, ref: dict, a0: np.ndarray,
             state = tracker.initial_state(stream_ref, a0)
 
             def one_window(length: int = length, stride: int = stride,
-                           state: nt.MuscleState = state) -> None:
+                           state: MuscleState = state) -> None:
                 tracker.apply(tracker.plan_window(stream_ref, state, length, stride), state)
 
             per, _ = best_of(one_window, repeat)
@@ -204,15 +206,15 @@ def scaling(repeat: int, n_steps: int = 400) -> None:
         C, tau, Q, R = problem(m, p)
 
         def run() -> None:
-            grid = rc.prepare_grid(t, C, tau, Q, R)
-            rc.backward_sweep(grid, np.array([0]), n_steps, n_steps + 1)
+            grid = prepare_grid(t, C, tau, Q, R)
+            backward_sweep(grid, np.array([0]), n_steps, n_steps + 1)
 
         phi = np.full((t.size, m), 3000.0)
         psi = np.zeros((t.size, m))
         lo = (np.full(m, np.exp(-h / 0.06)), np.zeros(m))
         hi = (np.full(m, np.exp(-h / 0.01)), np.full(m, 1 - np.exp(-h / 0.01)))
         cpu, _ = best_of(run, repeat)
-        cpu_b, _ = best_of(lambda: rc.solve_bounded_lqt(h, C, tau, Q, R, phi, psi,
+        cpu_b, _ = best_of(lambda: solve_bounded_lqt(h, C, tau, Q, R, phi, psi,
                                                         np.full(m, 0.1), lo, hi), repeat)
         return cpu, cpu_b
 
@@ -245,10 +247,10 @@ def main() -> None:
     ap.add_argument('--quick', action='store_true', help='H = 20, 50, 100 ms only, repeat 1')
     args = ap.parse_args()
     repeat = 1 if args.quick else args.repeat
-    tracker = nt.NeuromuscularTracker()
+    tracker = NeuromuscularTracker()
     trackers = {'plan': tracker,
-                'clip': nt.NeuromuscularTracker(tracker.model,
-                                                nt.load_stage2_settings(saturation='clip'))}
+                'clip': NeuromuscularTracker(tracker.model,
+                                                load_stage2_settings(saturation='clip'))}
     ref = load_reference(args.bag, tracker.model)
     init = rest_activations(tracker.model, ref['theta'][0], ref['tau'][0], ref['theta_dot'][0])
     print(f"a0 from the first torque sample: exact {init.exact}, max |a0 - a_true(0)| "

@@ -98,7 +98,7 @@ def test_excitations_are_bounded_and_reproduce_the_motion(model, truth, shipped)
 def test_stage2_tracks_the_muscle_made_torques(model, truth, shipped):
     """Torques the muscles can make are ones Stage 2 can track: under 3 % of each joint's peak
     (issue 5's target; on free-torque Stage-1 estimates the ankle misses it)."""
-    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
+    from nmt_ros.tracking.stage2 import NeuromuscularTracker
 
     s2 = NeuromuscularTracker(model).track_motion(shipped.t, shipped.q, shipped.qd,
                                                   shipped.qdd, shipped.tau, shipped.x0,

@@ -104,7 +104,7 @@ def test_stage1_polled_one_sample_at_a_time_is_the_batch_tracker():
 
 @pytest.mark.slow
 def test_stage2_stream_equals_batch_windowed():
-    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
+    from nmt_ros.tracking.stage2 import NeuromuscularTracker
 
     model, _, _, batch = _trial()
     n = 120

@@ -38,7 +38,7 @@ from nmt_ros.topics import (
     MUSCLE_OUTPUTS,
     SKELETAL_JOINT_TORQUES,
 )
-from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
+from nmt_ros.tracking.stage2 import NeuromuscularTracker, load_stage2_settings
 from nmt_ros.tracking.streaming import Stage2Output, Stage2Stream
 
 NODE_NAME = 'muscle_tracker'

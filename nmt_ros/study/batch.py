@@ -32,8 +32,8 @@ from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
-from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.stage2 import load_stage2_settings
 
 #: Stage 1's foot-angle weight in flight for trials that start in flight (Table 1's shank
 #: weight: in the air the foot is a segment like the others; see

@@ -17,16 +17,16 @@ from nmt_ros.model.simulation import Simulation, held, simulate_excitations
 from nmt_ros.records import MuscleEstimates, Observations, SKTResult, TrialEstimates
 from nmt_ros.tracking.conditioning import ConditionedObservations, ConditioningSettings, condition
 from nmt_ros.tracking.ivd import IVDResult, inverse_dynamics_baseline, simulate_open_loop
-from nmt_ros.tracking.neuromuscular_tracker import (
-    NeuromuscularTracker,
-    Stage2Result,
-    load_stage2_settings,
-)
 from nmt_ros.tracking.skeletal_tracker import (
     SKTSettings,
     SKTState,
     initial_state,
     reference_arrays,
+)
+from nmt_ros.tracking.stage2 import (
+    NeuromuscularTracker,
+    Stage2Result,
+    load_stage2_settings,
 )
 from nmt_ros.tracking.streaming import track_stage1
 

@@ -126,8 +126,8 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     from nmt_ros.tracking.conditioning import ConditioningSettings, condition
     from nmt_ros.tracking.moving_horizon.estimator import estimate
     from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
-    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker, load_stage2_settings
     from nmt_ros.tracking.skeletal_tracker import SKTSettings
+    from nmt_ros.tracking.stage2 import NeuromuscularTracker, load_stage2_settings
     from nmt_ros.tracking.streaming import initial_activations, track_stage1
 
     sk, mu = settings.get('skeletal_tracker', {}), settings.get('muscle_tracker', {})

@@ -23,8 +23,8 @@ from nmt_ros.records import Truth
 from nmt_ros.study.observations import ObservationSettings, make_observations
 from nmt_ros.study.pipeline import NMTSettings, joint_kinematics, run_nmt
 from nmt_ros.tracking.conditioning import condition
-from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
+from nmt_ros.tracking.stage2 import NeuromuscularTracker
 from nmt_ros.tracking.streaming import track_stage1
 
 
@@ -138,7 +138,7 @@ def stage2_weight_study(model: JumperModel, truth: Truth, run: object, k_rs: lis
     kinematics and on ``run``'s Stage 1: tracking, NMT jump, muscle forces vs actual."""
     from nmt_ros.study.metrics import jump_from
     from nmt_ros.study.pipeline import simulate_stage2
-    from nmt_ros.tracking.neuromuscular_tracker import load_stage2_settings
+    from nmt_ros.tracking.stage2 import load_stage2_settings
 
     actual = jump_from(model, truth.t, truth.q, truth.qd, truth.liftoff_s)['jump_height_m']
     f0 = model.p.muscles.f0

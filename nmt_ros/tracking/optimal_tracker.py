@@ -260,7 +260,7 @@ def track_optimal(model: JumperModel, obs: Observations, guess: SKTResult,
 def _muscle_guess(model: JumperModel, guess: SKTResult) -> tuple[np.ndarray, np.ndarray]:
     """Activations and excitations [n, 9] that make the guess's torques: Stage 2 on them
     (up to the guess's lift-off + 10 ms), from the activations that hold its first posture."""
-    from nmt_ros.tracking.neuromuscular_tracker import NeuromuscularTracker
+    from nmt_ros.tracking.stage2 import NeuromuscularTracker
 
     t_stop = guess.liftoff_s if np.isfinite(guess.liftoff_s) else guess.t[-1]
     stage2 = NeuromuscularTracker(model).track_motion(guess.t, guess.q, guess.qd, guess.qdd,

@@ -42,17 +42,17 @@ from nmt_ros.tracking.conditioning import (
     ConditioningSettings,
     FixedLagConditioner,
 )
-from nmt_ros.tracking.neuromuscular_tracker import (
-    NeuromuscularTracker,
-    Stage2Result,
-    StreamState,
-)
 from nmt_ros.tracking.skeletal_tracker import (
     SkeletalTracker,
     SKTSettings,
     SKTState,
     initial_state,
     reference_arrays,
+)
+from nmt_ros.tracking.stage2 import (
+    NeuromuscularTracker,
+    Stage2Result,
+    StreamState,
 )
 
 # --------------------------------------------------------------------------- Stage 1

@@ -7,48 +7,50 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+import stage2_oracles as oracles
 
 from nmt_ros.model.jumper import default_model
 from nmt_ros.model.squat import rest_activations
-from nmt_ros.tracking import neuromuscular_tracker as nt
-from nmt_ros.tracking import riccati as rc
+from nmt_ros.tracking.stage2 import NeuromuscularTracker, Stage2Result, load_stage2_settings
+from nmt_ros.tracking.stage2.activation import ActivationLaw, eq9_excitation
+from nmt_ros.tracking.stage2.references import refine_samples
 
 JUMP_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
 
 @pytest.fixture(scope='module')
-def tracker() -> nt.NeuromuscularTracker:
-    return nt.NeuromuscularTracker()
+def tracker() -> NeuromuscularTracker:
+    return NeuromuscularTracker()
 
 
 @pytest.fixture(scope='module')
-def clip_tracker(tracker) -> nt.NeuromuscularTracker:
+def clip_tracker(tracker) -> NeuromuscularTracker:
     """The paper's Stage 2: unconstrained LQT, excitations clipped to [0, 1]."""
-    return nt.NeuromuscularTracker(tracker.model, nt.load_stage2_settings(saturation='clip'))
+    return NeuromuscularTracker(tracker.model, load_stage2_settings(saturation='clip'))
 
 
 @pytest.fixture(scope='module')
-def synth() -> nt.SyntheticReference:
-    return nt.synthetic_reference(dt=1e-3)
+def synth() -> oracles.SyntheticReference:
+    return oracles.synthetic_reference(dt=1e-3)
 
 
 @pytest.fixture(scope='module')
-def full(tracker, synth) -> nt.Stage2Result:
+def full(tracker, synth) -> Stage2Result:
     s = synth
     return tracker.track(s.t, s.tau_ref, s.theta, s.theta_dot, s.theta_ddot, s.a_true[0])
 
 
-def _inputs(s: nt.SyntheticReference) -> tuple[np.ndarray, ...]:
+def _inputs(s: oracles.SyntheticReference) -> tuple[np.ndarray, ...]:
     return s.t, s.tau_ref, s.theta, s.theta_dot, s.theta_ddot
 
 
 # ---------------------------------------------------------------------------- settings, pieces
 def test_settings_weights_mapped_by_name(tracker):
-    st = nt.load_stage2_settings()
+    st = load_stage2_settings()
     assert (st.k_q, st.k_r, st.k_p) == (1500.0, 1000.0, 0.0)
     assert st.saturation == 'plan' and tracker.constrained
     with pytest.raises(ValueError):
-        nt.load_stage2_settings(saturation='ignore')
+        load_stage2_settings(saturation='ignore')
     assert 'Appendix B' in st.source
     names = tracker.names
     assert names == ('gmax', 'ilpso', 'hams', 'bfsh', 'rf', 'vas', 'gas', 'sol', 'ta')
@@ -60,12 +62,12 @@ def test_settings_weights_mapped_by_name(tracker):
     np.testing.assert_allclose(tracker.R, expected, rtol=1e-15)
     np.testing.assert_array_equal(tracker.Q, 1500.0 * np.eye(3))
     np.testing.assert_array_equal(tracker.P, np.zeros((3, 3)))
-    assert nt.load_stage2_settings(k_q=10.0).k_q == 10.0
+    assert load_stage2_settings(k_q=10.0).k_q == 10.0
 
 
 def test_activation_step_is_the_models_ode():
     model = default_model()
-    law = nt.ActivationLaw.from_model(model)
+    law = ActivationLaw.from_model(model)
     a0 = np.linspace(0.01, 0.99, 9)
     u = np.linspace(1.0, 0.0, 9)
     h = 0.02
@@ -91,7 +93,7 @@ def test_refinement_is_exact_for_quintics():
         return out
 
     tau = np.stack([t, 2 * t, -t], axis=1)
-    tf, tau_f, th, thd, thdd = nt.refine_samples(t, tau, poly(t, 0), poly(t, 1), poly(t, 2), 4)
+    tf, tau_f, th, thd, thdd = refine_samples(t, tau, poly(t, 0), poly(t, 1), poly(t, 2), 4)
     assert tf.size == 21
     np.testing.assert_allclose(tf, np.linspace(0, 0.1, 21), atol=1e-15)
     np.testing.assert_allclose(th, poly(tf, 0), atol=1e-12)
@@ -113,7 +115,7 @@ def test_eq9_excitation_realises_the_requested_force_rate(tracker):
     drift, gain = tracker.activation.affine(a0)
     dfdl = ref.dfdl_0[0] + a0 * (ref.dfdl_1[0] - ref.dfdl_0[0])
     dfdv = ref.dfdv_0[0] + a0 * (ref.dfdv_1[0] - ref.dfdv_0[0])
-    u = nt.eq9_excitation(eta, ref.phi[0], dfdl, dfdv, drift, gain, ref.v_mt[0], ref.vdot_mt[0])
+    u = eq9_excitation(eta, ref.phi[0], dfdl, dfdv, drift, gain, ref.v_mt[0], ref.vdot_mt[0])
 
     def force(dt: float) -> np.ndarray:
         th = theta0 + thd * dt + 0.5 * thdd * dt ** 2
@@ -137,7 +139,7 @@ def test_full_horizon_tracks_the_torques(full, synth):
     assert set(full.cpu_s) == {'prepare', 'plan', 'riccati', 'forward'}
 
 
-def _c_matrix(s: nt.SyntheticReference) -> np.ndarray:
+def _c_matrix(s: oracles.SyntheticReference) -> np.ndarray:
     model = default_model()
     C, = model.batch(model.moment_arm_matrix, s.theta)
     return C.reshape(-1, 3, 9)
@@ -153,7 +155,7 @@ def test_w_symmetric_positive_semidefinite(full, clip_tracker, synth):
 
 def test_coarse_input_grid_is_refined_and_agrees(tracker, full):
     """120 Hz input: substeps keep the result close to the 1 kHz one."""
-    s = nt.synthetic_reference(dt=1 / 120)
+    s = oracles.synthetic_reference(dt=1 / 120)
     res = tracker.track(*_inputs(s), s.a_true[0])
     assert res.substeps == 9 and res.t.size == s.t.size
     assert np.all(res.rms_error_relative < 0.03)
@@ -178,7 +180,7 @@ def test_windowed_matches_full_horizon(tracker, synth, full):
 def test_streaming_equals_batch_windowed(tracker, clip_tracker, dt, saturation):
     """``push`` fed uneven chunks of samples == the batch windowed mode (also with substeps)."""
     tracker = tracker if saturation == 'plan' else clip_tracker
-    synth = nt.synthetic_reference(dt=dt)
+    synth = oracles.synthetic_reference(dt=dt)
     kw = dict(window_length=0.03, window_stride=0.002)
     batch = tracker.track(*_inputs(synth), synth.a_true[0], mode='windowed', **kw)
     stream = tracker.start_stream(synth.a_true[0], dt=dt)
@@ -204,7 +206,7 @@ def test_streaming_equals_batch_windowed(tracker, clip_tracker, dt, saturation):
 
 
 # ---------------------------------------------------------------------------- saturation
-def _collapse(synth: nt.SyntheticReference) -> np.ndarray:
+def _collapse(synth: oracles.SyntheticReference) -> np.ndarray:
     """The extensor torques collapse in 3 ms: faster than deactivation allows (tau 60 ms)."""
     drop = np.clip((synth.t - 0.12) / 0.003, 0.0, 1.0)
     return synth.tau_ref * (1 - 0.9 * drop)[:, None]
@@ -243,7 +245,7 @@ def test_saturation_is_planned(tracker, clip_tracker, synth):
     assert res.saturation_mode == 'plan' and rep.fraction_planned[ext].min() > 0
     late = synth.t > 0.05
 
-    def switch_off(r: nt.Stage2Result) -> np.ndarray:
+    def switch_off(r: Stage2Result) -> np.ndarray:
         return synth.t[late][np.argmax(r.u[late][:, ext] == 0.0, axis=0)]
 
     assert np.all(switch_off(res) < switch_off(paper))       # deactivation starts earlier
@@ -266,8 +268,8 @@ def test_lqt_solution_is_optimal_on_the_linear_system(tracker, synth):
     """
     ref = tracker.reference(*_inputs(synth), substeps=4)
     t, C, tau = ref.t, ref.C, ref.tau_ref
-    sol = rc.solve_lqt(t, C, tau, tracker.Q, tracker.R)
-    f_opt, _ = rc.simulate_linear(sol, synth.f_true[0])
+    sol = oracles.solve_lqt(t, C, tau, tracker.Q, tracker.R)
+    f_opt, _ = oracles.simulate_linear(sol, synth.f_true[0])
     h = t[1] - t[0]
     eta = np.diff(f_opt, axis=0) / h                        # piecewise-constant optimum
 
@@ -315,11 +317,11 @@ def jump(tracker) -> dict:
 
 
 @pytest.fixture(scope='module')
-def jump_full(tracker, jump) -> nt.Stage2Result:
+def jump_full(tracker, jump) -> Stage2Result:
     return tracker.track(*jump['inputs'], jump['truth'].a[0])
 
 
-def _contact_rms_relative(res: nt.Stage2Result, contact: np.ndarray) -> np.ndarray:
+def _contact_rms_relative(res: Stage2Result, contact: np.ndarray) -> np.ndarray:
     err = res.tracking_error[contact]
     return np.sqrt(np.mean(err ** 2, axis=0)) / np.abs(res.tau_ref[contact]).max(axis=0)
 

@@ -5,8 +5,9 @@ import control
 import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are, sqrtm
+import stage2_oracles as oracles
 
-from nmt_ros.tracking import riccati as rc
+from nmt_ros.tracking.stage2 import bounded_qp, lqt
 
 
 def _jumper_problem() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -26,7 +27,7 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 
 def test_step_functions_series_and_closed_forms_agree():
     mu = np.array([0.0199, 0.0201, 0.5, 3.0])
-    c = rc._step_functions(mu, 1.0)
+    c = lqt._step_functions(mu, 1.0)
     x = mu
     np.testing.assert_allclose(c['d'], np.tanh(x) / x, rtol=1e-9)
     np.testing.assert_allclose(c['n'], (1 - 1 / np.cosh(x)) / x ** 2, rtol=1e-8)
@@ -42,7 +43,7 @@ def test_constant_c_reaches_closed_form_steady_state():
     assert rates.max() > 300          # the stiffness the integrator must cope with
     t = np.arange(0, 0.2 + 1e-12, 1 / 120)   # a coarse 120 Hz grid: exact steps stay stable
     tau = np.zeros((t.size, 3))
-    sol = rc.solve_lqt(t, C, tau, Q, R)
+    sol = oracles.solve_lqt(t, C, tau, Q, R)
     r_h = np.sqrt(np.diag(R))
     S = r_h[:, None] * np.real(sqrtm(M / np.outer(r_h, r_h))) * r_h[None, :]
     assert _rel(sol.W[0], S) < 1e-6       # ~6e-8: sqrtm of the rank-3 matrix is the limit
@@ -67,7 +68,7 @@ def test_general_ab_path_matches_care_and_control_lqr():
     Q = np.diag([2.0, 0.5])
     R = np.diag([0.3, 1.2])
     t = np.linspace(0, 30, 301)      # slowest closed-loop mode 0.39 1/s: e^(-2*0.39*30) ~ 1e-10
-    sol = rc.solve_lqt(t, C, np.zeros((t.size, p)), Q, R, A=A, B=B)
+    sol = oracles.solve_lqt(t, C, np.zeros((t.size, p)), Q, R, A=A, B=B)
     S_care = solve_continuous_are(A, B, C.T @ Q @ C, R)
     _, S_ctrl, _ = control.lqr(A, B, C.T @ Q @ C, R)
     assert _rel(sol.W[0], S_care) < 1e-9
@@ -82,8 +83,8 @@ def test_general_path_equals_fast_path_for_a0_b_identity():
     C = C0[None] * (1 + 0.3 * np.sin(40 * t))[:, None, None] + 0.004 * rng.normal(size=(1, 3, 9))
     tau = np.stack([100 * np.sin(30 * t), 50 * np.cos(20 * t), 80 * t], axis=1)
     P = 0.01 * np.eye(3)
-    fast = rc.solve_lqt(t, C, tau, Q, R, P=P)
-    general = rc.solve_lqt(t, C, tau, Q, R, P=P, A=np.zeros((9, 9)), B=np.eye(9))
+    fast = oracles.solve_lqt(t, C, tau, Q, R, P=P)
+    general = oracles.solve_lqt(t, C, tau, Q, R, P=P, A=np.zeros((9, 9)), B=np.eye(9))
     assert _rel(fast.W, general.W) < 1e-8
     assert _rel(fast.g, general.g) < 1e-8
 
@@ -91,7 +92,7 @@ def test_general_path_equals_fast_path_for_a0_b_identity():
 def test_scalar_constant_coefficients_tanh_solution():
     q, r, c, tf = 3.0, 0.2, 1.7, 1.0
     t = np.linspace(0, tf, 11)                       # coarse: the step is exact
-    sol = rc.solve_lqt(t, np.full((t.size, 1, 1), c), np.zeros((t.size, 1)), [[q]], [r])
+    sol = oracles.solve_lqt(t, np.full((t.size, 1, 1), c), np.zeros((t.size, 1)), [[q]], [r])
     exact = np.sqrt(q * r) * c * np.tanh(c * np.sqrt(q / r) * (tf - t))
     np.testing.assert_allclose(sol.W[:, 0, 0], exact, rtol=1e-12, atol=1e-14)
 
@@ -119,8 +120,8 @@ def test_scalar_time_varying_manufactured_solution(n):
     tf = 2.0
     t = np.linspace(0, tf, n)
     ms = _manufactured(t, tf)
-    sol = rc.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]], [ms['r']],
-                       P=[[ms['P']]])
+    sol = oracles.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]],
+                            [ms['r']], P=[[ms['P']]])
     assert _rel(sol.W[:, 0, 0], ms['w']) < 1e-6
     assert _rel(sol.g[:, 0], ms['g']) < 1e-6
 
@@ -131,8 +132,8 @@ def test_scalar_time_varying_is_second_order():
     for n in (101, 201, 401):
         t = np.linspace(0, tf, n)
         ms = _manufactured(t, tf)
-        sol = rc.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]],
-                           [ms['r']], P=[[ms['P']]])
+        sol = oracles.solve_lqt(t, ms['c'][:, None, None], ms['tau'][:, None], [[ms['q']]],
+                                [ms['r']], P=[[ms['P']]])
         errs.append(np.abs(sol.g[:, 0] - ms['g']).max())
     order = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert np.all(order > 1.8), order
@@ -148,8 +149,8 @@ def test_adjoint_constant_reference_reaches_r_weighted_optimum():
     tau = np.array([-60.0, 120.0, -150.0])
     f0 = np.full(9, 300.0)
     t = np.arange(0, 0.3 + 1e-12, 1e-3)
-    sol = rc.solve_lqt(t, C, np.tile(tau, (t.size, 1)), Q, R)
-    f, eta = rc.simulate_linear(sol, f0)
+    sol = oracles.solve_lqt(t, C, np.tile(tau, (t.size, 1)), Q, R)
+    f, eta = oracles.simulate_linear(sol, f0)
     ri = np.linalg.inv(R)
     f_inf = f0 + ri @ C.T @ np.linalg.solve(C @ ri @ C.T, tau - C @ f0)
     mid = t.size // 2                     # far from both ends (rates > 400 1/s)
@@ -164,8 +165,8 @@ def test_tracking_cost_of_a_known_trajectory():
     c, q, r, p, tau, f0, rate = 0.5, 3.0, 0.2, 7.0, 4.0, 1.0, 2.0
     f = (f0 + rate * t)[:, None]
     eta = np.full_like(f, rate)
-    J = rc.tracking_cost(t, f, eta, np.full((t.size, 1, 1), c), np.full((t.size, 1), tau),
-                         [[q]], [r], P=[[p]])
+    J = oracles.tracking_cost(t, f, eta, np.full((t.size, 1, 1), c),
+                              np.full((t.size, 1), tau), [[q]], [r], P=[[p]])
     e0, e1 = tau - c * f0, tau - c * (f0 + rate * 2)
     exact = 0.5 * p * e1 ** 2 + 0.5 * (q * (e0 ** 2 + e0 * e1 + e1 ** 2) / 3 * 2
                                        + r * rate ** 2 * 2)
@@ -179,8 +180,8 @@ def test_lqt_control_matches_explicit_formula():
     f = rng.normal(size=(5, 4))
     r = np.array([0.5, 2.0, 1.0, 3.0])
     expected = np.stack([np.linalg.solve(np.diag(r), g[i] - W[i] @ f[i]) for i in range(5)])
-    np.testing.assert_allclose(rc.lqt_control(W, g, f, r), expected, rtol=1e-12)
-    np.testing.assert_allclose(rc.lqt_control(W, g, f, np.diag(r)), expected, rtol=1e-12)
+    np.testing.assert_allclose(lqt.lqt_control(W, g, f, r), expected, rtol=1e-12)
+    np.testing.assert_allclose(lqt.lqt_control(W, g, f, np.diag(r)), expected, rtol=1e-12)
 
 
 # ---------------------------------------------------------------------------- bounded / discrete
@@ -217,8 +218,9 @@ def test_bounded_lqt_satisfies_the_kkt_conditions():
     sufficient; the gradient is taken from the cost itself by central differences (exact for a
     quadratic up to rounding)."""
     pr = _bounded_problem()
-    sol = rc.solve_bounded_lqt(pr['h'], pr['C'], pr['tau'], pr['Q'], pr['R'], pr['phi'],
-                               pr['psi'], pr['x0'], pr['lo'], pr['hi'], tol=1e-10)
+    sol = bounded_qp.solve_bounded_lqt(pr['h'], pr['C'], pr['tau'], pr['Q'], pr['R'],
+                                       pr['phi'], pr['psi'], pr['x0'], pr['lo'], pr['hi'],
+                                       tol=1e-10)
     assert sol.converged and sol.cost == pytest.approx(_discrete_cost(pr, sol.x), rel=1e-12)
     n, m = sol.x.shape
     (la, lb), (ha, hb) = pr['lo'], pr['hi']
@@ -251,22 +253,23 @@ def test_discrete_lqt_equals_the_bounded_lqt_without_and_with_active_bounds():
     m = pr['x0'].size
     # without active bounds: the bounded solution is the plain discrete LQT (all free)
     loose = ((np.ones(m), -1e3 * np.ones(m)), (np.ones(m), 1e3 * np.ones(m)))
-    sol = rc.solve_bounded_lqt(*args, pr['x0'], *loose, tol=1e-12)
-    dl = rc.discrete_lqt(*args)
+    sol = bounded_qp.solve_bounded_lqt(*args, pr['x0'], *loose, tol=1e-12)
+    dl = lqt.discrete_lqt(*args)
     n = pr['t'].size
     free = np.ones((n - 1, m), dtype=bool)
-    x = dl.simulate(pr['x0'], np.ones((n - 1, m)), free, np.zeros((n - 1, m)))
+    x = oracles.simulate_discrete(dl, pr['x0'], np.ones((n - 1, m)), free,
+                                  np.zeros((n - 1, m)))
     np.testing.assert_allclose(x, sol.x, atol=1e-7)
     # with them: the discrete LQT over the active set reproduces the bounded solution
-    sol = rc.solve_bounded_lqt(*args, pr['x0'], pr['lo'], pr['hi'], tol=1e-12)
+    sol = bounded_qp.solve_bounded_lqt(*args, pr['x0'], pr['lo'], pr['hi'], tol=1e-12)
     pos = sol.position()
     high, low = pos > 1 - 1e-6, pos < 1e-6
     (la, lb), (ha, hb) = pr['lo'], pr['hi']
     E = np.where(high, ha, np.where(low, la, 1.0))
     c = np.where(high, hb, np.where(low, lb, 0.0))
     free = ~(high | low)
-    dl = rc.discrete_lqt(*args, E=E, free=free, c=c)
-    x = dl.simulate(pr['x0'], E, free, c)
+    dl = lqt.discrete_lqt(*args, E=E, free=free, c=c)
+    x = oracles.simulate_discrete(dl, pr['x0'], E, free, c)
     np.testing.assert_allclose(x, sol.x, atol=1e-6)
     assert np.all(np.linalg.eigvalsh(dl.S).min(axis=1) > -1e-9 * np.abs(dl.S).max())
 
@@ -281,10 +284,10 @@ def test_discrete_lqt_tends_to_the_continuous_lqt():
         C = C0[None] * (1 + 0.3 * np.sin(20 * t))[:, None, None]
         tau = np.stack([100 * np.sin(30 * t), 50 * np.cos(20 * t), -80 - 200 * t], axis=1)
         f0 = np.full(9, 300.0)
-        cont = rc.simulate_linear(rc.solve_lqt(t, C, tau, Q, r), f0)[0]
-        dl = rc.discrete_lqt(t[1] - t[0], C, tau, Q, r, np.ones((n, 9)), np.zeros((n, 9)))
+        cont = oracles.simulate_linear(oracles.solve_lqt(t, C, tau, Q, r), f0)[0]
+        dl = lqt.discrete_lqt(t[1] - t[0], C, tau, Q, r, np.ones((n, 9)), np.zeros((n, 9)))
         ones = np.ones((n - 1, 9))
-        disc = dl.simulate(f0, ones, ones > 0, 0 * ones)
+        disc = oracles.simulate_discrete(dl, f0, ones, ones > 0, 0 * ones)
         errs.append(np.abs(disc - cont).max())
     order = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert np.all(order > 1.8), (errs, order)          # second order in h
