@@ -7,9 +7,9 @@ windows of length H (a plan per window start t_k with P = 0 at t_k + H, applied 
 * 'clip' (the paper's LQT): Eqs. 12-13 by the exact-step sweep (``lqt.backward_sweep``), with
   the exact closed-loop step data of Eq. 14 per interval; the plans of all window starts do
   not depend on the muscle state and are swept together; or
-* 'plan' (saturation-aware, DEPARTS FROM THE PAPER): (1) the bounded LQT
-  (``bounded_qp.solve_bounded_lqt``: Eq. 11 on the internal grid with every activation step
-  between the exact steps at u = 0 and u = 1) from the current activations decides which
+* 'plan' (saturation-aware, DEPARTS FROM THE PAPER): (1) the bounded LQT (``bounded_qp``:
+  Eq. 11 on the internal grid with every activation step between the exact steps at u = 0
+  and u = 1, a convex QP) from the current activations decides which
   muscles sit at u = 0 / 1 over which intervals (its active set); (2) the discrete LQT of that
   active set (``lqt.discrete_lqt``: Riccati, adjoint and feedback law of the same discretised
   Eq. 11) - the held muscles' forces enter as known inputs of their own activation dynamics,
@@ -24,7 +24,12 @@ import numpy as np
 
 from nmt_ros.tracking.stage2 import lqt
 from nmt_ros.tracking.stage2.activation import ActivationLaw
-from nmt_ros.tracking.stage2.bounded_qp import BoundedLqtSolution, solve_bounded_lqt
+from nmt_ros.tracking.stage2.bounded_qp import (
+    BoundedLqtQp,
+    BoundedLqtSolution,
+    bounded_lqt_qp,
+    interior_point,
+)
 from nmt_ros.tracking.stage2.references import Stage2Reference
 from nmt_ros.tracking.stage2.settings import Stage2Settings
 
@@ -142,21 +147,27 @@ class WindowPlanner:
                 rows=ref.rows(int(s + ref.offset), int(s + k + 1 + ref.offset))))
         return plans
 
-    def bounded_plan(self, ref: Stage2Reference, a0: np.ndarray, start: int,
-                     stop: int) -> BoundedLqtSolution:
-        """The bounded LQT (Eq. 11 with 0 <= u <= 1) on global samples [start, stop] from the
-        activations a0 [m].
+    def bounded_qp(self, ref: Stage2Reference, a0: np.ndarray, start: int,
+                   stop: int) -> BoundedLqtQp:
+        """The QP of the bounded LQT (Eq. 11 with 0 <= u <= 1) on global samples
+        [start, stop] from the activations a0 [m].
 
         Discrete Eq. 11 on the internal grid, activations as unknowns, each step between the
-        exact activation steps at u = 0 and u = 1 (``bounded_qp.solve_bounded_lqt``).
+        exact activation steps at u = 0 and u = 1 (``bounded_qp.bounded_lqt_qp``).
         """
         r = ref.rows(start, stop + 1)
         s = slice(start - ref.offset, stop + 1 - ref.offset)
         lo, hi = self.activation.bounds(ref.grid.h)
+        return bounded_lqt_qp(ref.grid.h, r['C'], r['tau_ref'], self.Q, self.R, ref.phi[s],
+                              ref.psi[s], a0, lo, hi, P=self.P)
+
+    def bounded_plan(self, ref: Stage2Reference, a0: np.ndarray, start: int,
+                     stop: int) -> BoundedLqtSolution:
+        """The bounded LQT on global samples [start, stop] from the activations a0 [m]
+        (``bounded_qp``, solved by ``bounded_qp.interior_point``)."""
         st = self.settings
-        return solve_bounded_lqt(ref.grid.h, r['C'], r['tau_ref'], self.Q, self.R, ref.phi[s],
-                                 ref.psi[s], a0, lo, hi, P=self.P, tol=st.plan_tol,
-                                 max_iterations=st.plan_max_iterations)
+        return interior_point(self.bounded_qp(ref, a0, start, stop), tol=st.plan_tol,
+                              max_iterations=st.plan_max_iterations)
 
     def plan(self, ref: Stage2Reference, start: int, a: np.ndarray, length: int,
              stride: int) -> WindowPlan:

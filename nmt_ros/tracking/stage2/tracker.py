@@ -12,7 +12,6 @@ from nmt_ros.model.jumper import JumperModel, default_model
 from nmt_ros.model.squat import rest_activations_for_posture
 from nmt_ros.tracking.stage2 import streaming
 from nmt_ros.tracking.stage2.activation import ActivationLaw
-from nmt_ros.tracking.stage2.bounded_qp import BoundedLqtSolution
 from nmt_ros.tracking.stage2.forward_pass import apply_plan, initial_state
 from nmt_ros.tracking.stage2.plans import WindowPlan, WindowPlanner
 from nmt_ros.tracking.stage2.receding_horizon import run_windows
@@ -70,11 +69,6 @@ class NeuromuscularTracker:
                        window_stride: float | None = None) -> tuple[int, int]:
         """(window length, stride) in intervals of the internal grid, from s."""
         return self.planner.window_samples(ref, window_length, window_stride)
-
-    def bounded_plan(self, ref: Stage2Reference, a0: np.ndarray, start: int,
-                     stop: int) -> BoundedLqtSolution:
-        """The bounded LQT on global samples [start, stop] from activations a0 [m]."""
-        return self.planner.bounded_plan(ref, a0, start, stop)
 
     def plan_window(self, ref: Stage2Reference, state: MuscleState, length: int,
                     stride: int) -> WindowPlan:
