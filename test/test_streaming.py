@@ -164,3 +164,51 @@ def test_stage2_input_times_are_snapped_to_the_grid():
     t = np.array([row[1] for row in runner.pending])
     assert np.abs(stamps * 1e-9 - k / 1080.0).max() > 0      # off the grid as received
     np.testing.assert_array_equal(t, k / 1080.0)                # exactly on it once queued
+
+
+def _stage2_in_chunks(chunk_sizes, window_length_s: float = 0.04,
+                      window_stride_s: float = 0.01) -> dict:
+    """The reference jump's true torques and joint kinematics through ``Stage2Stream``,
+    ``process`` called after each chunk of samples (sizes cycled from ``chunk_sizes``)."""
+    from nmt_ros.io.trial_bag import read_truth
+    from nmt_ros.model.jumper import default_model
+
+    model = default_model()
+    tr = read_truth(BAG)
+    J = np.column_stack([model.call(model.joint_angles, e)[0] for e in np.eye(6)])
+    theta, theta_dot = tr.q @ J.T, tr.qd @ J.T
+    stamps = 1_000_000 + np.rint(tr.t * 1e9).astype(np.int64)
+    stream = Stage2Stream(model, window_length_s=window_length_s,
+                          window_stride_s=window_stride_s)
+    outs, i, k, streamed = [], 0, 0, 0
+    while i < tr.t.size:
+        n = int(chunk_sizes[k % len(chunk_sizes)])
+        for j in range(i, min(i + n, tr.t.size)):
+            stream.add(stamps[j], tr.t[j], tr.tau[j], theta[j], theta_dot[j])
+        i, k = i + n, k + 1
+        out = stream.process()
+        if out is not None:
+            outs.append(out)
+            streamed += out.t.size
+    outs.append(stream.process(final=True))
+    assert stream.process(final=True) is None
+    cat = {key: np.concatenate([getattr(o, key) for o in outs])
+           for key in ('stamp_ns', 't', 'f', 'a', 'u', 'saturated')}
+    np.testing.assert_array_equal(cat['stamp_ns'], stamps)       # every sample, once
+    return cat | {'streamed': streamed}
+
+
+def test_stage2_stream_output_does_not_depend_on_how_the_input_was_cut():
+    """Issue 13: the live Stage 2 must be a function of its input stream, not of when its
+    work ran. The same samples fed one at a time (a fast, idle node), in random bursts of
+    1-120 (a loaded node catching up) and all in one call give identical
+    outputs, bit for bit, through the jump's push-off, saturation and lift-off."""
+    rng = np.random.default_rng(13)
+    one = _stage2_in_chunks([1])
+    bursts = _stage2_in_chunks(rng.integers(1, 121, size=64))
+    whole = _stage2_in_chunks([10 ** 6])
+    assert one['streamed'] > 0.6 * one['t'].size        # most outputs before the end
+    assert one['saturated'].any() and not one['saturated'].all()
+    for key in ('t', 'f', 'a', 'u', 'saturated'):
+        np.testing.assert_array_equal(bursts[key], one[key], err_msg=key)
+        np.testing.assert_array_equal(whole[key], one[key], err_msg=key)

@@ -1,13 +1,15 @@
 """muscle_tracker: Stage 2 (neuromuscular tracking, receding Riccati windows) live.
 
 Subscribes ``/nmt/skeletal/joint_torques`` (JointState [ankle, knee, hip]: OpenSim joint
-angle, rate and torque, one per force-plate instant). Every ``process_period_s`` the queued
-samples are pushed to Stage 2 (``NeuromuscularTracker.push``, the code of the batch windowed
-mode): a window of length ``window_length_s`` (H) is planned (backward Riccati/adjoint sweep)
-as soon as the torques up to its end are in, and applied over ``window_stride_s``. The
-estimate for instant t is therefore available once Stage 1 reached t + H; its latency is the
-skeletal tracker's plus H plus up to a stride. Joint accelerations are central differences
-of the received joint rates (``nmt_ros.tracking.streaming``).
+angle, rate and torque, one per force-plate instant). The samples go to Stage 2
+(``nmt_ros.tracking.streaming.Stage2Stream`` over ``NeuromuscularTracker.push``, the code of
+the batch windowed mode) as they arrive: a window of length ``window_length_s`` (H) is planned
+(bounded LQT, backward Riccati/adjoint sweep) in the callback of the sample that completes its
+look-ahead, and applied over ``window_stride_s``. The estimate for instant t is therefore
+available once Stage 1 reached t + H; its latency is the skeletal tracker's plus H plus up to
+a stride. The work is cut by data (sample indices), never by a timer: the same input stream
+gives the same estimates at any replay rate and under any CPU load. Joint accelerations are
+central differences of the received joint rates.
 
 Publishes, stamped with the observation instant of the torque sample they belong to:
 ``/nmt/muscle/forces`` (JointState [gmax, ilpso, hams, bfsh, rf, vas, gas, sol, ta]:
@@ -63,9 +65,6 @@ class MuscleTrackerNode(TrackerNode):
                                '[Hz]', low=1.0, high=100000.0)
         self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
                               "by nmt import-lab; '' = the shipped jumper)")
-        self.process_period_s = p('process_period_s', 0.005, 'queued samples are pushed to '
-                                  'Stage 2 this often [s] (batching amortises the cost)',
-                                  low=0.0005, high=1.0)
         stride = self.window_stride_s if self.window_stride_s > 0 else None
         self.status.settings = {'window_length_s': self.window_length_s,
                                 'window_stride_s': self.window_stride_s,
@@ -80,7 +79,6 @@ class MuscleTrackerNode(TrackerNode):
                                    self.input_rate_hz)
         self.gates = self.stream_gates({SKELETAL_JOINT_TORQUES: 1 / self.input_rate_hz})
         self.received_at: dict[int, float] = {}
-        self.create_timer(self.process_period_s, self.process)
         self.listen()
 
     # ------------------------------------------------------------------ inputs
@@ -96,6 +94,7 @@ class MuscleTrackerNode(TrackerNode):
             self.stream.add(s.stamp_ns, self.clock.t(s.stamp_ns), v[0:3], v[3:6], v[6:9])
         self.received_at[stamp_ns] = received
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
+        self.process()
         self._check_end()
 
     # ------------------------------------------------------------------ trial

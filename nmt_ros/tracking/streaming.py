@@ -54,6 +54,7 @@ from nmt_ros.tracking.stage2 import (
     Stage2Result,
     StreamState,
 )
+from nmt_ros.tracking.stage2.streaming import samples_for_next_window
 
 # --------------------------------------------------------------------------- Stage 1
 
@@ -315,6 +316,7 @@ class Stage2Stream:
         self.a0: np.ndarray | None = None
         self.problem: str | None = None
         self.finished = False
+        self._n_pushed = 0
 
     def add(self, stamp_ns: int, t: float, tau: np.ndarray, theta: np.ndarray,
             theta_dot: np.ndarray) -> None:
@@ -350,35 +352,64 @@ class Stage2Stream:
         return acc
 
     def process(self, final: bool = False) -> Stage2Output | None:
-        """Push the queued samples (all but the last unless ``final``); new outputs or None."""
+        """Push the queued samples that complete windows (all of them if ``final``); the new
+        outputs or None.
+
+        Work is cut by data, never by when ``process`` is called: the samples are pushed in
+        blocks that end exactly where the next window's look-ahead ends
+        (``stage2.streaming.samples_for_next_window``; the sample after a block must be
+        queued too, for the last one's acceleration), one block per window, the first block
+        a window long. Called after every sample or once a minute, on an idle or a loaded
+        machine, the stream makes the same pushes and gives the same outputs bit for bit.
+        """
         if self.finished:
             return None
-        n = len(self.pending) if final else len(self.pending) - 1
-        if n <= 0:
+        steps = []
+        while self.pending:
+            if self.state is None:
+                _, _, tau, theta, thd = self.pending[0]
+                self.a0, self.problem = initial_activations(self.model, theta, tau, thd)
+                self.state = self.tracker.start_stream(self.a0, 1.0 / self.rate_hz)
             if final:
-                self.finished = True
+                n = len(self.pending)
+            else:
+                n = samples_for_next_window(self.state, self._window()[0]) - self._n_pushed
+                if len(self.pending) <= n:
+                    break
+            steps += self._push(n, final)
+            if final:
+                break
+        if final:
+            self.finished = True
+        if self.state is None or (not steps and not final):
             return None
+        return self._collect(steps, final)
+
+    def _window(self) -> tuple[int, int]:
+        """(window length, stride) in intervals of the stream's internal grid."""
+        sub = self.state.substeps
+        return self.tracker.planner.window_intervals(1.0 / (self.rate_hz * sub), sub,
+                                                     self.window_length_s,
+                                                     self.window_stride_s)
+
+    def _push(self, n: int, final: bool) -> list:
+        """Push the first n queued samples to Stage 2; its new steps."""
         rows = self.pending[:n]
         acc = self._accelerations(rows)
         self.pending = self.pending[n:]
+        self._n_pushed += n
         stamps = np.array([r[0] for r in rows], dtype=np.int64)
         t = np.array([r[1] for r in rows])
         tau = np.array([r[2] for r in rows])
         theta = np.array([r[3] for r in rows])
         thd = np.array([r[4] for r in rows])
         self._prev = (float(t[-1]), thd[-1].copy())
-        tr = self.tracker
-        if self.state is None:
-            self.a0, self.problem = initial_activations(self.model, theta[0], tau[0], thd[0])
-            self.state = tr.start_stream(self.a0, 1.0 / self.rate_hz)
         for i in range(n):
             self._pushed.append((int(stamps[i]), float(t[i]), theta[i], thd[i]))
-        self.state, steps = tr.push(self.state, t, tau, theta, thd, acc, final=final,
-                                    window_length=self.window_length_s,
-                                    window_stride=self.window_stride_s)
-        if final:
-            self.finished = True
-        return self._collect(steps, final)
+        self.state, steps = self.tracker.push(self.state, t, tau, theta, thd, acc, final=final,
+                                              window_length=self.window_length_s,
+                                              window_stride=self.window_stride_s)
+        return steps
 
     def _collect(self, steps: list, final: bool) -> Stage2Output | None:
         """Output rows at input samples (every ``substeps``-th internal row)."""

@@ -148,26 +148,35 @@ class LqtGrid:
         return gt @ self.r_sqrt.T
 
 
-def uniform_step(t: np.ndarray) -> float:
-    """The step h [s] of a uniform increasing grid t [n] (clear error otherwise)."""
+def uniform_step(t: np.ndarray, h: float | None = None) -> float:
+    """The step h [s] of a uniform increasing grid t [n] (clear error otherwise).
+
+    Without ``h`` the step is the mean of the grid's differences (it carries their rounding,
+    so it depends on which samples t holds); with ``h`` (the nominal step, e.g. 1 / rate) t
+    is checked against it and h itself is returned: a stream built in pieces then uses one
+    step whatever its pieces.
+    """
     t = np.asarray(t, dtype=float)
     if t.ndim != 1 or t.size < 2:
         raise ValueError('t must be a 1-D grid of at least 2 samples')
     dt = np.diff(t)
-    h = float(dt.mean())
-    if h <= 0 or np.max(np.abs(dt - h)) > 1e-4 * h:   # (time stamps in ns jitter ~1e-6 h)
-        raise ValueError('t must be uniform and increasing')
-    return h
+    step = float(dt.mean()) if h is None else float(h)
+    if step <= 0 or np.max(np.abs(dt - step)) > 1e-4 * step:   # (stamps in ns: ~1e-6 h)
+        raise ValueError('t must be uniform and increasing'
+                         + ('' if h is None else f' with step {h} s'))
+    return step
 
 
 def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
-                 R: np.ndarray, P: np.ndarray | None = None) -> LqtGrid:
+                 R: np.ndarray, P: np.ndarray | None = None, h: float | None = None,
+                 ) -> LqtGrid:
     """Precompute the scaled problem and the exact-step coefficients of every interval.
 
     t [n] uniform (s); C [n, p, m]; tau_ref [n, p]; Q [p, p]; R [m, m] SPD (or its diagonal
-    [m]); P [p, p] terminal weight (default 0). Vectorised over samples (batched eigh).
+    [m]); P [p, p] terminal weight (default 0); h [s] the nominal step (default: from t,
+    ``uniform_step``). Vectorised over samples (batched eigh).
     """
-    h = uniform_step(t)
+    h = uniform_step(t, h)
     C = np.asarray(C, dtype=float)
     tau_ref = np.asarray(tau_ref, dtype=float)
     n, p, m = C.shape

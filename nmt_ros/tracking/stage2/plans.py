@@ -101,11 +101,17 @@ class WindowPlanner:
                        window_stride: float | None = None) -> tuple[int, int]:
         """(window length, stride) in intervals of the reference's (internal) grid, from
         lengths in s (default: the settings')."""
-        h = ref.grid.h
+        return self.window_intervals(ref.grid.h, ref.substeps, window_length, window_stride)
+
+    def window_intervals(self, h: float, substeps: int, window_length: float | None = None,
+                         window_stride: float | None = None) -> tuple[int, int]:
+        """(window length, stride) in intervals of an internal grid of step h [s] with
+        ``substeps`` intervals per input interval, from lengths in s (default: the
+        settings')."""
         length_s = self.settings.window_length if window_length is None else window_length
         stride_s = self.settings.window_stride if window_stride is None else window_stride
         length = max(1, int(round(length_s / h)))
-        stride = ref.substeps if stride_s is None else max(1, int(round(stride_s / h)))
+        stride = substeps if stride_s is None else max(1, int(round(stride_s / h)))
         if stride > length:
             raise ValueError(f'window stride ({stride} samples) exceeds its length ({length})')
         return length, stride

@@ -93,21 +93,23 @@ class ReferenceBuilder:
 
     def build(self, t: np.ndarray, tau_ref: np.ndarray, theta: np.ndarray,
               theta_dot: np.ndarray, theta_ddot: np.ndarray, offset: int = 0,
-              substeps: int | None = None) -> Stage2Reference:
+              substeps: int | None = None, dt: float | None = None) -> Stage2Reference:
         """Precompute C(theta), the muscle kinematics/partials and the LQT grid (vectorised).
 
         t [n] uniform (s); tau_ref [n, 3] (N m), theta, theta_dot, theta_ddot [n, 3] (rad,
         rad/s, rad/s^2). ``substeps`` (default from ``max_step``) refines the grid (see
-        ``Stage2Reference``).
+        ``Stage2Reference``). dt [s]: the nominal input step (default: the mean step of t; a
+        stream passes 1 / rate so that its grid does not depend on how it was cut).
         """
         t = np.atleast_1d(np.asarray(t, dtype=float))
         n = t.size
         arrays = [np.asarray(x, dtype=float).reshape(n, 3)
                   for x in (tau_ref, theta, theta_dot, theta_ddot)]
         if substeps is None:
-            substeps = self.substeps_for((t[-1] - t[0]) / (n - 1)) if n >= 2 else 1
+            step = dt if dt is not None else (t[-1] - t[0]) / (n - 1) if n >= 2 else None
+            substeps = self.substeps_for(step) if step is not None else 1
         if substeps > 1 and n >= 2:
-            t, *arrays = refine_samples(t, *arrays, substeps=substeps)
+            t, *arrays = refine_samples(t, *arrays, substeps=substeps, dt=dt)
             n = t.size
         tau_ref, theta, theta_dot, theta_ddot = arrays
         m = self.model
@@ -116,7 +118,8 @@ class ReferenceBuilder:
         psi, phi, dl0, dv0 = m.batch(m.muscle_force_partials, np.zeros((n, nm)), l_mt, v_mt)
         _, _, dl1, dv1 = m.batch(m.muscle_force_partials, np.ones((n, nm)), l_mt, v_mt)
         C = C.reshape(n, 3, nm)
-        grid = lqt.prepare_grid(t, C, tau_ref, self.Q, self.R, self.P) if n >= 2 else None
+        h = None if dt is None else dt / substeps
+        grid = lqt.prepare_grid(t, C, tau_ref, self.Q, self.R, self.P, h=h) if n >= 2 else None
         return Stage2Reference(offset=offset, substeps=substeps, t=t, tau_ref=tau_ref,
                                theta=theta, theta_dot=theta_dot, theta_ddot=theta_ddot, C=C,
                                v_mt=v_mt, vdot_mt=vdot_mt, phi=phi, psi=psi, dfdl_0=dl0,
@@ -124,23 +127,25 @@ class ReferenceBuilder:
 
     def extend(self, ref: Stage2Reference | None, t: np.ndarray, tau_ref: np.ndarray,
                theta: np.ndarray, theta_dot: np.ndarray, theta_ddot: np.ndarray,
-               substeps: int | None = None) -> Stage2Reference:
+               substeps: int | None = None, dt: float | None = None) -> Stage2Reference:
         """Append input samples (units of ``build``), computing only the new rows and intervals.
 
         The first call (``ref`` None) fixes ``substeps`` (default: from the step of the first
         two samples, or 1 if only one sample has arrived and ``substeps`` is not given).
+        dt [s]: the nominal input step (``build``).
         """
         if ref is not None and np.atleast_1d(t).size == 0:
             return ref   # nothing new (e.g. a final push without samples)
         if ref is None:
             if substeps is None and np.atleast_1d(t).size < 2:
                 substeps = 1
-            return self.build(t, tau_ref, theta, theta_dot, theta_ddot, substeps=substeps)
+            return self.build(t, tau_ref, theta, theta_dot, theta_ddot, substeps=substeps,
+                              dt=dt)
         last = ref.rows(ref.end, ref.end + 1)
         joined = [np.concatenate([last[k], np.atleast_2d(x) if k != 't' else np.atleast_1d(x)])
                   for k, x in (('t', t), ('tau_ref', tau_ref), ('theta', theta),
                                ('theta_dot', theta_dot), ('theta_ddot', theta_ddot))]
-        new = self.build(*joined, offset=ref.end, substeps=ref.substeps)
+        new = self.build(*joined, offset=ref.end, substeps=ref.substeps, dt=dt)
         grid = new.grid if ref.grid is None else lqt.concat_grids(ref.grid, new.grid)
         merged = {k: np.concatenate([getattr(ref, k), getattr(new, k)[1:]])
                   for k in ROW_FIELDS}
@@ -170,14 +175,15 @@ _QUINTIC = np.array([
 
 def refine_samples(t: np.ndarray, tau_ref: np.ndarray, theta: np.ndarray,
                    theta_dot: np.ndarray, theta_ddot: np.ndarray, substeps: int,
-                   ) -> tuple[np.ndarray, ...]:
+                   dt: float | None = None) -> tuple[np.ndarray, ...]:
     """Split each interval into ``substeps``: theta by quintic Hermite (C2, consistent
     theta_dot, theta_ddot), tau_ref linearly (causal: uses only the interval's end samples).
 
-    Returns (t, tau_ref, theta, theta_dot, theta_ddot) with (n - 1) * substeps + 1 rows.
+    dt [s]: the input step (default: the mean step of t). Returns (t, tau_ref, theta,
+    theta_dot, theta_ddot) with (n - 1) * substeps + 1 rows.
     """
     n = t.size
-    h = (t[-1] - t[0]) / (n - 1)
+    h = (t[-1] - t[0]) / (n - 1) if dt is None else dt
     s = np.arange(substeps) / substeps                             # [N]
     powers = s[:, None] ** np.arange(6)                            # [N, 6]
     d1 = np.zeros_like(powers)

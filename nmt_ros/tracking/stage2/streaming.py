@@ -6,6 +6,12 @@ Window k (start t_k) is planned as soon as samples up to t_k + H are in; its out
 reference rows still needed, the muscle state and the next window start. The batch windowed
 mode runs the same plans and forward pass on the whole recording and equals ``push`` fed it in
 chunks (tested).
+
+The grid of a stream has the nominal step of ``start_stream`` (not one estimated from the
+samples of each push), and ``samples_for_next_window`` says where the next window's data end:
+a caller that pushes exactly up to there (``nmt_ros.tracking.streaming.Stage2Stream``) makes
+the same computations in the same pieces however its input arrived, so its output is a
+function of the input samples alone (bit for bit).
 """
 from __future__ import annotations
 
@@ -29,11 +35,19 @@ class StreamState:
     reference: Stage2Reference | None = None
     muscle: MuscleState | None = None
     next_start: int = 0
+    dt: float | None = None      # s, the nominal input step (None: from the samples)
 
 
 def start_stream(references: ReferenceBuilder, a0: np.ndarray, dt: float) -> StreamState:
     """A fresh streaming state: initial activations a0 [m], input sample period dt [s]."""
-    return StreamState(a0=np.asarray(a0, dtype=float), substeps=references.substeps_for(dt))
+    return StreamState(a0=np.asarray(a0, dtype=float), substeps=references.substeps_for(dt),
+                       dt=float(dt))
+
+
+def samples_for_next_window(stream: StreamState, length: int) -> int:
+    """Input samples (counted from the stream's first) the reference must hold before the
+    next window, ``length`` internal intervals from its start, can be planned."""
+    return -(-(stream.next_start + length) // stream.substeps) + 1
 
 
 def push(references: ReferenceBuilder, planner: WindowPlanner, stream: StreamState,
@@ -47,7 +61,7 @@ def push(references: ReferenceBuilder, planner: WindowPlanner, stream: StreamSta
     stride in s (default: the settings').
     """
     ref = references.extend(stream.reference, t, tau_ref, theta, theta_dot, theta_ddot,
-                            substeps=stream.substeps)
+                            substeps=stream.substeps, dt=stream.dt)
     muscle = stream.muscle if stream.muscle is not None else initial_state(ref, stream.a0)
     steps: list[Stage2Step] = []
     next_start = stream.next_start
