@@ -29,7 +29,7 @@ Saturation (``Stage2Settings.saturation``; DEPARTS FROM THE PAPER in the default
   the internal grid (trapezoid tracking, interval-rate effort, the same Q, R, P) with the
   activations as unknowns and every activation step between the exact steps at u = 0 and
   u = 1 - a convex QP, solved by a primal-dual interior point whose Newton steps are discrete
-  LQTs factorised by the Riccati (banded Cholesky) recursion; ~15 iterations, ~10 ms for the
+  LQTs factorised by the Riccati (block Cholesky) recursion; ~15 iterations, ~10 ms for the
   0.25 s jump. Its active set says which muscles sit at a bound over which intervals. (2) the
   LQT of that active set, ``lqt.discrete_lqt``: Eqs. 12-14 in discrete form (Riccati,
   adjoint, feedback law) for the free muscles, the saturated ones entering as known inputs

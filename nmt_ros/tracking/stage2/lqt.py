@@ -42,8 +42,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from scipy.linalg import get_lapack_funcs
 
 #: Below this x = mu h the step functions are evaluated by their Taylor series.
 _SERIES_X = 0.02
@@ -385,22 +385,93 @@ def discrete_lqt(h: float, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray, R:
     qxv_d = G * H * rh
     lin_v = H * rh * d
     lin_x = track_lin[:-1] - G * rh * d
-    posv = get_lapack_funcs('posv', (S,))
-    rhs = np.empty((m, m + 1))
-    for i in range(n - 2, -1, -1):
-        sc = s - S @ c[i]
-        qxx = qxx0[i] + ee[i] * S
-        qxv = eb[i] * S
-        qxv[diag, diag] += qxv_d[i]
-        qvv = bb[i] * S
-        qvv[diag, diag] += qvv_d[i]
-        rhs[:, :m] = qxv.T
-        rhs[:, m] = B[i] * sc - lin_v[i]
-        _, sol, info = posv(qvv, rhs, lower=1)
-        if info != 0:
-            sol = np.linalg.solve(qvv, rhs)
-        K_out[i], k_out[i] = sol[:, :m], sol[:, m]
-        S = symmetric(qxx - qxv @ sol[:, :m])
-        s = lin_x[i] + E[i] * sc - qxv @ sol[:, m]
-        S_out[i], s_out[i] = S, s
+    _riccati_recursion(S, s, np.ascontiguousarray(c), qxx0, ee, eb, bb, qxv_d, qvv_d, lin_v,
+                       lin_x, B, np.ascontiguousarray(E), S_out, s_out, K_out, k_out)
     return DiscreteLqt(S=S_out, s=s_out, K=K_out, k=k_out)
+
+
+@numba.njit(cache=True)
+def _riccati_recursion(S: np.ndarray, s: np.ndarray, c: np.ndarray, qxx0: np.ndarray,
+                       ee: np.ndarray, eb: np.ndarray, bb: np.ndarray, qxv_d: np.ndarray,
+                       qvv_d: np.ndarray, lin_v: np.ndarray, lin_x: np.ndarray, B: np.ndarray,
+                       E: np.ndarray, S_out: np.ndarray, s_out: np.ndarray, K_out: np.ndarray,
+                       k_out: np.ndarray) -> None:
+    """The backward recursion of ``discrete_lqt`` (compiled: m = 9 and one small solve per
+    step, numpy's per-call overhead was ~90 % of it), from S, s at the last sample; fills
+    S_out, s_out [n] and K_out, k_out [n-1] (the last sample's rows already set)."""
+    n1, m = c.shape
+    qvv = np.empty((m, m))
+    rhs = np.empty((m, m + 1))
+    sol = np.empty((m, m + 1))
+    L = np.empty((m, m))
+    qxx = np.empty((m, m))
+    qxv = np.empty((m, m))
+    sc = np.empty(m)
+    for i in range(n1 - 1, -1, -1):
+        for r in range(m):
+            acc = s[r]
+            for k in range(m):
+                acc -= S[r, k] * c[i, k]
+            sc[r] = acc
+        for r in range(m):
+            for k in range(m):
+                qxx[r, k] = qxx0[i, r, k] + ee[i, r, k] * S[r, k]
+                qxv[r, k] = eb[i, r, k] * S[r, k]
+                qvv[r, k] = bb[i, r, k] * S[r, k]
+            qxv[r, r] += qxv_d[i, r]
+            qvv[r, r] += qvv_d[i, r]
+        for r in range(m):
+            for k in range(m):
+                rhs[r, k] = qxv[k, r]
+            rhs[r, m] = B[i, r] * sc[r] - lin_v[i, r]
+        # Cholesky of qvv (symmetric positive definite; else a general solve)
+        pd = True
+        for col in range(m):
+            d = qvv[col, col]
+            for k in range(col):
+                d -= L[col, k] * L[col, k]
+            if not d > 0.0:
+                pd = False
+                break
+            d = np.sqrt(d)
+            L[col, col] = d
+            for r in range(col + 1, m):
+                acc = qvv[r, col]
+                for k in range(col):
+                    acc -= L[r, k] * L[col, k]
+                L[r, col] = acc / d
+        if pd:
+            for j in range(m + 1):
+                for r in range(m):
+                    acc = rhs[r, j]
+                    for k in range(r):
+                        acc -= L[r, k] * sol[k, j]
+                    sol[r, j] = acc / L[r, r]
+                for r in range(m - 1, -1, -1):
+                    acc = sol[r, j]
+                    for k in range(r + 1, m):
+                        acc -= L[k, r] * sol[k, j]
+                    sol[r, j] = acc / L[r, r]
+        else:
+            sol[:, :] = np.linalg.solve(qvv, rhs)
+        for r in range(m):
+            for k in range(m):
+                K_out[i, r, k] = sol[r, k]
+            k_out[i, r] = sol[r, m]
+        for r in range(m):
+            for k in range(m):
+                acc = qxx[r, k]
+                for j in range(m):
+                    acc -= qxv[r, j] * sol[j, k]
+                S_out[i, r, k] = acc
+            acc = lin_x[i, r] + E[i, r] * sc[r]
+            for j in range(m):
+                acc -= qxv[r, j] * sol[j, m]
+            s_out[i, r] = acc
+        for r in range(m):
+            for k in range(m):
+                S[r, k] = 0.5 * (S_out[i, r, k] + S_out[i, k, r])
+        for r in range(m):
+            for k in range(m):
+                S_out[i, r, k] = S[r, k]
+            s[r] = s_out[i, r]
