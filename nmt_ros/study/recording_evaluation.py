@@ -169,11 +169,11 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
                                                     for k in range(x.shape[1])])
                                    for x in (res.tau, th, thd, thdd))
         a0, _ = initial_activations(model, th[0], tau2[0], thd[0])
-        stride = _float(mu, 'setting.window_stride_s', 0.01)
+        stride = _float(mu, 'setting.window_stride_s', 0.02)
         stage2 = load_stage2_settings(saturation=mu.get('setting.saturation', 'plan'))
         s2 = NeuromuscularTracker(model, stage2).track(
             t2, tau2, th, thd, thdd, a0, mode='windowed',
-            window_length=_float(mu, 'setting.window_length_s', 0.1),
+            window_length=_float(mu, 'setting.window_length_s', 0.04),
             window_stride=stride if stride > 0 else None)
         out.update(f=s2.f, t2=s2.t)
     return out

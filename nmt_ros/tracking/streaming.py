@@ -31,8 +31,10 @@ from collections import deque
 from dataclasses import dataclass, replace
 import time
 
+import casadi as ca
 import numpy as np
 
+from nmt_ros.model.compiled import compiled
 from nmt_ros.model.contact import LiftoffDetector, liftoff_time
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.squat import rest_activations
@@ -305,6 +307,10 @@ class Stage2Stream:
         self.window_length_s = window_length_s
         self.window_stride_s = window_stride_s
         self.rate_hz = rate_hz
+        th, thd = ca.SX.sym('theta', 3), ca.SX.sym('theta_dot', 3)
+        self._kinematics = compiled(ca.Function(
+            'stage2_output_kinematics', [th, thd],
+            [model.musculotendon_lengths(th), model.musculotendon_velocities(th, thd)]))
         self.reset()
 
     def reset(self) -> None:
@@ -450,9 +456,7 @@ class Stage2Stream:
             theta.append(th)
             thd.append(v)
         theta, thd = np.array(theta), np.array(thd)
-        m = self.model
-        l_mt, = m.batch(m.musculotendon_lengths, theta)
-        v_mt, = m.batch(m.musculotendon_velocities, theta, thd)
+        l_mt, v_mt = self.model.batch(self._kinematics, theta, thd)
         return Stage2Output(stamp_ns=np.array(stamps, dtype=np.int64), t=t_out,
                             f=np.vstack(f), a=np.vstack(a), u=np.vstack(u), l_mt=l_mt,
                             v_mt=v_mt, saturated=np.vstack(sat))

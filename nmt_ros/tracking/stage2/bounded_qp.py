@@ -99,7 +99,7 @@ class BoundedLqtQp:
         xf = np.vstack([self.x0, x])
         f = self.phi * xf + self.psi
         e = self.tau_ref - np.einsum('npm,nm->np', self.C, f)
-        val = 0.5 * np.sum(self.w * np.einsum('np,pq,nq->n', e, self.Q, e))
+        val = 0.5 * np.sum(self.w * np.sum((e @ self.Q) * e, axis=1))
         val += 0.5 * np.sum(self.k_eff * np.diff(f, axis=0) ** 2)
         if self.P is not None:
             val += 0.5 * float(e[-1] @ np.asarray(self.P, dtype=float) @ e[-1])
@@ -195,13 +195,13 @@ def interior_point(qp: BoundedLqtQp, tol: float = 1e-9,
     c = np.ascontiguousarray
     n1, m = qp.shape
     cost0 = qp.cost(np.zeros((n1, m)))
-    x, z, iterations, converged = _interior_point_kernel(
+    x, z, iterations, converged, cost = _interior_point_kernel(
         c(qp.T), c(qp.e_diag), c(qp.e_off), c(qp.g_lin), c(qp.la), c(qp.ha), c(qp.lb),
         c(qp.hb), c(qp.lb0), c(qp.hb0), c(qp.x0), cost0, float(tol), int(max_iterations))
     xf = np.vstack([qp.x0, x])
     s_lo, s_hi = qp.constraints(x)
     return BoundedLqtSolution(x=xf, f=qp.phi * xf + qp.psi, slack_lo=s_lo, slack_hi=s_hi,
-                              z_lo=z[0], z_hi=z[1], cost=qp.cost(x), iterations=iterations,
+                              z_lo=z[0], z_hi=z[1], cost=cost, iterations=iterations,
                               converged=converged)
 
 
@@ -241,10 +241,10 @@ def _block_cholesky(blocks: np.ndarray, coupling: np.ndarray, shift: float,
                         mf[i, r, c] = acc / lf[i - 1, c, c]
                     for c in range(r, m):
                         mf[i, r, c] *= cr
-            for r in range(m):
+            for r in range(m):          # M is upper triangular: (M M')_rc sums k >= r >= c
                 for c in range(r + 1):
                     acc = 0.0
-                    for k in range(m):
+                    for k in range(r, m):
                         acc += mf[i, r, k] * mf[i, c, k]
                     a[r, c] -= acc
         for c in range(m):
@@ -367,9 +367,9 @@ def _interior_point_kernel(T: np.ndarray, e_diag: np.ndarray, e_off: np.ndarray,
                            g_lin: np.ndarray, la: np.ndarray, ha: np.ndarray, lb: np.ndarray,
                            hb: np.ndarray, lb0: np.ndarray, hb0: np.ndarray, x0: np.ndarray,
                            cost0: float, tol: float, max_iterations: int,
-                           ) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """``interior_point`` compiled: returns (x [N, m], z [2, N, m], iterations, converged).
-    cost0: the QP's cost at x = 0 (its constant term)."""
+                           ) -> tuple[np.ndarray, np.ndarray, int, bool, float]:
+    """``interior_point`` compiled: returns (x [N, m], z [2, N, m], iterations, converged,
+    cost at x). cost0: the QP's cost at x = 0 (its constant term)."""
     n1, m = g_lin.shape
     x = np.empty((n1, m))
     xi = x0.copy()
@@ -454,4 +454,9 @@ def _interior_point_kernel(T: np.ndarray, e_diag: np.ndarray, e_off: np.ndarray,
         x += alpha * dx
         sl += alpha * ds
         z += alpha * dz
-    return x, z, iterations, converged
+    _hess_vec(T, e_diag, e_off, x, hx)
+    cost = cost0
+    for i in range(n1):
+        for r in range(m):
+            cost += x[i, r] * (0.5 * hx[i, r] + g_lin[i, r])
+    return x, z, iterations, converged, cost

@@ -128,8 +128,9 @@ class LqtGrid:
     b_tilde: np.ndarray        # [n, m]     R^-1/2 C'Q tau_ref at the samples
     wt_terminal: np.ndarray    # [n, m, m]  R^-1/2 C'PC R^-1/2 (terminal value if tf = t_i)
     gt_terminal: np.ndarray    # [n, m]     R^-1/2 C'P tau_ref
-    v: np.ndarray              # [n-1, m, m]  eigenvectors of the interval-mean m_tilde
+    v: np.ndarray | None       # [n-1, m, m]  eigenvectors of the interval-mean m_tilde
     coef: dict[str, np.ndarray]  # [n-1, m]: _step_functions + projected forcing
+    # (v None and coef empty: prepared without the sweep data, ``prepare_grid(sweeps=False)``)
 
     @property
     def n(self) -> int:
@@ -169,12 +170,14 @@ def uniform_step(t: np.ndarray, h: float | None = None) -> float:
 
 def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarray,
                  R: np.ndarray, P: np.ndarray | None = None, h: float | None = None,
-                 ) -> LqtGrid:
+                 sweeps: bool = True) -> LqtGrid:
     """Precompute the scaled problem and the exact-step coefficients of every interval.
 
     t [n] uniform (s); C [n, p, m]; tau_ref [n, p]; Q [p, p]; R [m, m] SPD (or its diagonal
     [m]); P [p, p] terminal weight (default 0); h [s] the nominal step (default: from t,
-    ``uniform_step``). Vectorised over samples (batched eigh).
+    ``uniform_step``). Vectorised over samples (batched eigh). ``sweeps`` False leaves out
+    what only ``backward_sweep`` uses (the eigen-decompositions and step coefficients of the
+    intervals; Stage 2's 'plan' mode never sweeps).
     """
     h = uniform_step(t, h)
     C = np.asarray(C, dtype=float)
@@ -191,6 +194,10 @@ def prepare_grid(t: np.ndarray, C: np.ndarray, tau_ref: np.ndarray, Q: np.ndarra
     b_tilde = np.einsum('nip,np->ni', ctt @ Q, tau_ref)
     wt_terminal = symmetric(ctt @ P @ ct)
     gt_terminal = np.einsum('nip,np->ni', ctt @ P, tau_ref)
+    if not sweeps:
+        return LqtGrid(t=np.asarray(t, dtype=float), h=h, r_inv_sqrt=r_is, r_sqrt=r_s,
+                       m_tilde=m_tilde, b_tilde=b_tilde, wt_terminal=wt_terminal,
+                       gt_terminal=gt_terminal, v=None, coef={})
     mu2, v = np.linalg.eigh(0.5 * (m_tilde[1:] + m_tilde[:-1]))
     mu = np.sqrt(np.maximum(mu2, 0.0))
     coef = _step_functions(mu, h)
@@ -214,8 +221,10 @@ def concat_grids(first: LqtGrid, second: LqtGrid) -> LqtGrid:
     per_sample = ('t', 'm_tilde', 'b_tilde', 'wt_terminal', 'gt_terminal')
     joined = {k: np.concatenate([getattr(first, k), getattr(second, k)[1:]])
               for k in per_sample}
+    if (first.v is None) != (second.v is None):
+        raise ValueError('grids must both hold the sweep data or both not')
     return LqtGrid(h=first.h, r_inv_sqrt=first.r_inv_sqrt, r_sqrt=first.r_sqrt,
-                   v=np.concatenate([first.v, second.v]),
+                   v=None if first.v is None else np.concatenate([first.v, second.v]),
                    coef={k: np.concatenate([first.coef[k], second.coef[k]]) for k in first.coef},
                    **joined)
 
@@ -223,7 +232,8 @@ def concat_grids(first: LqtGrid, second: LqtGrid) -> LqtGrid:
 def tail_grid(grid: LqtGrid, k: int) -> LqtGrid:
     """The grid without its first k samples (and intervals)."""
     per_sample = ('t', 'm_tilde', 'b_tilde', 'wt_terminal', 'gt_terminal')
-    return LqtGrid(h=grid.h, r_inv_sqrt=grid.r_inv_sqrt, r_sqrt=grid.r_sqrt, v=grid.v[k:],
+    return LqtGrid(h=grid.h, r_inv_sqrt=grid.r_inv_sqrt, r_sqrt=grid.r_sqrt,
+                   v=None if grid.v is None else grid.v[k:],
                    coef={name: c[k:] for name, c in grid.coef.items()},
                    **{name: getattr(grid, name)[k:] for name in per_sample})
 
@@ -239,6 +249,8 @@ def backward_sweep(grid: LqtGrid, starts: np.ndarray, length: int, keep: int,
     up front; the loop over the ``length`` steps is a few batched [K, m, m] products and one
     batched solve.
     """
+    if grid.v is None:
+        raise ValueError('the grid was prepared without the sweep data (sweeps=False)')
     starts = np.atleast_1d(np.asarray(starts, dtype=int))
     n, m = grid.n, grid.m
     if length < 1 or keep < 1 or keep > length + 1:

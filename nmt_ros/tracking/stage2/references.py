@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from nmt_ros.model.compiled import compiled
 from nmt_ros.model.jumper import JumperModel
 from nmt_ros.tracking.stage2 import lqt
 
@@ -71,8 +72,10 @@ class ReferenceBuilder:
     """Builds and extends ``Stage2Reference``s for one model and one set of LQT weights."""
 
     def __init__(self, model: JumperModel, Q: np.ndarray, R: np.ndarray, P: np.ndarray,
-                 max_step: float) -> None:
-        """Q [3, 3], R diagonal [m], P [3, 3] of Eq. 11; max_step [s] of the internal grid."""
+                 max_step: float, sweeps: bool = True) -> None:
+        """Q [3, 3], R diagonal [m], P [3, 3] of Eq. 11; max_step [s] of the internal grid;
+        ``sweeps``: prepare the grid's sweep data (``lqt.prepare_grid``; 'clip' mode)."""
+        self.sweeps = sweeps
         self.model = model
         self.Q, self.R, self.P = Q, R, P
         self.max_step = max_step
@@ -80,12 +83,20 @@ class ReferenceBuilder:
         th = ca.SX.sym('theta', 3)
         thd = ca.SX.sym('theta_dot', 3)
         thdd = ca.SX.sym('theta_ddot', 3)
+        l_mt = model.musculotendon_lengths(th)
         v = model.musculotendon_velocities(th, thd)
         vdot = ca.jacobian(v, th) @ thd + ca.jacobian(v, thd) @ thdd
-        self._kinematics = ca.Function(
-            'stage2_kinematics', [th, thd, thdd],
-            [model.musculotendon_lengths(th), v, vdot, model.moment_arm_matrix(th)],
-            ['theta', 'theta_dot', 'theta_ddot'], ['l_mt', 'v_mt', 'vdot_mt', 'C'])
+        nm = self.n_muscles
+        psi, phi, dl0, dv0 = model.muscle_force_partials(ca.DM.zeros(nm), l_mt, v)
+        _, _, dl1, dv1 = model.muscle_force_partials(ca.DM.ones(nm), l_mt, v)
+        # Everything a reference row needs in one function, compiled to C (model.compiled):
+        # in CasADi's virtual machine these rows cost ~170 us per sample (~0.2 s per second
+        # of a 1080 Hz stream), compiled a few us; the VM is the fallback without a compiler.
+        self._rows = compiled(ca.Function(
+            'stage2_reference_rows', [th, thd, thdd],
+            [v, vdot, model.moment_arm_matrix(th), psi, phi, dl0, dv0, dl1, dv1],
+            ['theta', 'theta_dot', 'theta_ddot'],
+            ['v_mt', 'vdot_mt', 'C', 'psi', 'phi', 'dfdl_0', 'dfdv_0', 'dfdl_1', 'dfdv_1']))
 
     def substeps_for(self, h: float) -> int:
         """Fine intervals per input interval h [s] so that none exceeds ``max_step``."""
@@ -112,14 +123,12 @@ class ReferenceBuilder:
             t, *arrays = refine_samples(t, *arrays, substeps=substeps, dt=dt)
             n = t.size
         tau_ref, theta, theta_dot, theta_ddot = arrays
-        m = self.model
-        l_mt, v_mt, vdot_mt, C = m.batch(self._kinematics, theta, theta_dot, theta_ddot)
-        nm = self.n_muscles
-        psi, phi, dl0, dv0 = m.batch(m.muscle_force_partials, np.zeros((n, nm)), l_mt, v_mt)
-        _, _, dl1, dv1 = m.batch(m.muscle_force_partials, np.ones((n, nm)), l_mt, v_mt)
-        C = C.reshape(n, 3, nm)
+        v_mt, vdot_mt, C, psi, phi, dl0, dv0, dl1, dv1 = self.model.batch(
+            self._rows, theta, theta_dot, theta_ddot)
+        C = C.reshape(n, 3, self.n_muscles)
         h = None if dt is None else dt / substeps
-        grid = lqt.prepare_grid(t, C, tau_ref, self.Q, self.R, self.P, h=h) if n >= 2 else None
+        grid = (lqt.prepare_grid(t, C, tau_ref, self.Q, self.R, self.P, h=h,
+                                 sweeps=self.sweeps) if n >= 2 else None)
         return Stage2Reference(offset=offset, substeps=substeps, t=t, tau_ref=tau_ref,
                                theta=theta, theta_dot=theta_dot, theta_ddot=theta_ddot, C=C,
                                v_mt=v_mt, vdot_mt=vdot_mt, phi=phi, psi=psi, dfdl_0=dl0,

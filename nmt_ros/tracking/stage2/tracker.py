@@ -42,7 +42,8 @@ class NeuromuscularTracker:
         self.Q, self.R, self.P = self.settings.weights(self.names, self.f0)
         self.activation = ActivationLaw.from_model(self.model)
         self.references = ReferenceBuilder(self.model, self.Q, self.R, self.P,
-                                           self.settings.max_step)
+                                           self.settings.max_step,
+                                           sweeps=self.settings.saturation == 'clip')
         self.planner = WindowPlanner(self.settings, self.Q, self.R, self.P, self.f0,
                                      self.activation)
 
