@@ -56,7 +56,7 @@ class MuscleTrackerNode(TrackerNode):
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.param
-        self.window_length_s = p('window_length_s', 0.04, 'Riccati window H [s]: latency vs '
+        self.window_length_s = p('window_length_s', 0.03, 'Riccati window H [s]: latency vs '
                                  'agreement with the full horizon', low=0.001, high=10.0)
         self.window_stride_s = p('window_stride_s', 0.02, 'a window is planned every stride '
                                  '[s] (0 = every sample): CPU vs latency', low=0.0, high=10.0)

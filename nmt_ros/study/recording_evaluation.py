@@ -173,7 +173,7 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
         stage2 = load_stage2_settings(saturation=mu.get('setting.saturation', 'plan'))
         s2 = NeuromuscularTracker(model, stage2).track(
             t2, tau2, th, thd, thdd, a0, mode='windowed',
-            window_length=_float(mu, 'setting.window_length_s', 0.04),
+            window_length=_float(mu, 'setting.window_length_s', 0.03),
             window_stride=stride if stride > 0 else None)
         out.update(f=s2.f, t2=s2.t)
     return out
