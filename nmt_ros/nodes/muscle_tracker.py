@@ -80,6 +80,7 @@ class MuscleTrackerNode(TrackerNode):
                                    self.input_rate_hz)
         self.gates = self.stream_gates({SKELETAL_JOINT_TORQUES: 1 / self.input_rate_hz})
         self.received_at: dict[int, float] = {}
+        self.stream.warm_up()          # compiled kernels loaded before the inputs open
         # the model, CasADi functions and rclpy objects are permanent: out of the cyclic
         # garbage collector's scans (a full collection of them stalled a window by ~150 ms)
         gc.freeze()

@@ -313,6 +313,19 @@ class Stage2Stream:
             [model.musculotendon_lengths(th), model.musculotendon_velocities(th, thd)]))
         self.reset()
 
+    def warm_up(self) -> None:
+        """Run a short stream (standing still, no torque) through a copy of this stream: the
+        compiled kernels load (or compile, on a machine without their cache: about a minute)
+        and the CasADi maps of its block sizes are made now, not in a trial's first windows."""
+        copy = Stage2Stream(self.model, self.tracker, self.window_length_s,
+                            self.window_stride_s, self.rate_hz)
+        n = int(np.ceil((3 * self.window_length_s + 0.05) * self.rate_hz)) + 2
+        zero = np.zeros(3)
+        for k in range(n):
+            copy.add(k, k / self.rate_hz, zero, zero, zero)
+            copy.process()
+        copy.process(final=True)
+
     def reset(self) -> None:
         """Start a trial."""
         self.state: StreamState | None = None
