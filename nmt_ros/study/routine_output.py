@@ -3,6 +3,7 @@ figure and facts (what ``nmt routine`` writes into one folder)."""
 from __future__ import annotations
 
 from dataclasses import asdict
+import json
 from pathlib import Path
 
 import numpy as np
@@ -162,13 +163,21 @@ def write_routine_folder(folder: str | Path, model: JumperModel, routine: Routin
     facts = routine_facts(model, routine, truth)
     if generation_cpu_s is not None:
         facts['generation_cpu_s'] = generation_cpu_s
-    custom = {f'nmt.routine.{k}': v for k, v in facts.items()}
+    # CPU times differ between runs: kept out of the bag (same seed, same bytes), in a
+    # file beside it
+    timing = {k: facts[k] for k in ('simulation_cpu_s', 'generation_cpu_s') if k in facts}
+    timing['plan_cpu_s'] = [c.get('plan_cpu_s') for c in facts['cycles']]
+    custom = {f'nmt.routine.{k}': v for k, v in facts.items() if k not in timing}
+    custom['nmt.routine.cycles'] = [{k: v for k, v in c.items() if k != 'plan_cpu_s'}
+                                    for c in facts['cycles']]
     custom['nmt.routine.observations'] = obs.info
     if not with_truth:
         custom['nmt.routine.truth'] = ('not in this bag: that of the clean routine bag of the '
                                        'same seed')
     info = write_routine_bag(folder, obs, truth, comp, truth.x0, custom_data=custom,
                              truth_rate_hz=truth_rate_hz, with_truth=with_truth)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / 'generation_cpu.json').write_text(json.dumps(timing, indent=1) + '\n')
     if opensim:
         exact = routine_truth(model, routine, rounded=False)
         write_motion(folder, model, 'truth', exact.t, exact.q, exact.qd, exact.a, exact.x0)
