@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration', type=float, default=0.0, metavar='S',
                         help='replay only the first S seconds of the bag (default: all)')
     parser.add_argument('--timeout', type=float, default=None,
-                        help='give up after S seconds (default: the replay time + 120 s)')
+                        help='give up after S seconds (default: the replay time + 420 s)')
 
 
 def run(args: argparse.Namespace) -> int:

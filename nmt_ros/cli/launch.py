@@ -336,7 +336,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='replay only the first S seconds of the bag (default: all)')
     parser.add_argument('--timeout', type=float, default=None,
                         help='give up after this many seconds (default: the replay time + '
-                             '120 s)')
+                             '420 s: a first run compiles the estimators)')
     parser.add_argument('--view', action='store_true', help='serve the live view (Foxglove '
                         'WebSocket) from before the replay starts; see `nmt view`')
     from nmt_ros.cli.view import add_view_options
@@ -345,7 +345,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def replay_timeout_s(bag: str | os.PathLike | None, rate: float, duration_s: float = 0.0,
-                     margin_s: float = 120.0) -> float:
+                     margin_s: float = 420.0) -> float:
     """Wall time a graph run may take: the replayed span at ``rate`` plus ``margin_s``."""
     from nmt_ros.io.bags import bag_info
 

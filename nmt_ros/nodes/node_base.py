@@ -81,8 +81,9 @@ class NmtNode(Node):
             'wait_for', [''], "outputs that must have subscribers before inputs are opened: "
             "'/topic=N' entries ('' = none)") if gated else []
         self.wait_timeout_s = self.param(
-            'wait_timeout_s', 30.0, 'longest wait for those subscribers [s]; then the inputs '
-            'open anyway and the shortfall is reported', low=0.0, high=3600.0)
+            'wait_timeout_s', 300.0, 'longest wait for those subscribers [s] (a first run '
+            'compiles the estimators, minutes on 2 cores); then the inputs open anyway and the '
+            'shortfall is reported', low=0.0, high=3600.0)
         self.exit_when_finished = self.param(
             'exit_when_finished', exit_default, 'leave the spin loop (end the process) once '
             'the work is finished and the outputs are acknowledged (nmt launch sets it)')
