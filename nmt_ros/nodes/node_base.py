@@ -341,7 +341,7 @@ class TrackerNode(NmtNode):
             return
         if result.restart:
             self.status.event(WARN, result.restart)
-            self._finish(result.restart)
+            self._finish(result.restart, more_follows=True)
             self._start_trial(stamp_ns)
             self.book.saw(topic, stamp_ns)
             result = gate.offer(stamp_ns, values)
@@ -380,7 +380,9 @@ class TrackerNode(NmtNode):
                     self.status.event(ERROR, why)
                 self._finish(why)
 
-    def _finish(self, why: str) -> None:
+    def _finish(self, why: str, more_follows: bool = False) -> None:
+        """End the trial (flush, announce); ``more_follows``: a new trial starts at once
+        (a gap in the input), so an ``exit_when_finished`` node stays up."""
         if not self.tracking:
             return
         self.flush()
@@ -389,7 +391,7 @@ class TrackerNode(NmtNode):
         self.status.detail = f'trial {self.book.trial} finished: {why}'
         counts, firsts = self.book.finish()
         self.announce_end(counts, firsts, trial=self.book.trial, reason=why)
-        if self.exit_when_finished:
+        if self.exit_when_finished and not more_follows:
             self.done = True
 
     def watchdog(self) -> None:

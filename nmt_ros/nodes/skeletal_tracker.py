@@ -92,6 +92,11 @@ class SkeletalTrackerNode(TrackerNode):
                                 'of data (CPU vs latency)', low=1.0, high=2000.0)
         self.iterations = p('iterations', d.iterations, 'mhe: Gauss-Newton iterations per '
                             'update', low=1, high=20)
+        self.side_rate_hz = p('side_rate_hz', 0.0, 'mhe: rate of every output but the '
+                              'refined joint torques (segment angles, coordinates, ground '
+                              'wrench, the low-latency topics) [Hz]; 0 = every force-plate '
+                              'instant (publishing costs ~0.1 ms per message)', low=0.0,
+                              high=100000.0)
         self.lookahead_s = p('lookahead_s', 0.1, 'look-ahead of the zero-lag filters [s]: '
                              'latency vs accuracy (bench/bench_latency.py)', low=0.0, high=2.0)
         self.filter_window_s = p('filter_window_s', 0.5, 'history the live filter keeps [s]',
@@ -141,6 +146,7 @@ class SkeletalTrackerNode(TrackerNode):
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
+            'side_rate_hz': self.side_rate_hz,
             'lookahead_s': self.lookahead_s,
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
@@ -306,6 +312,17 @@ class SkeletalTrackerNode(TrackerNode):
         for block in blocks:
             if block.t.size == 0:
                 continue
+            if self.side_rate_hz > 0:
+                # every topic but the refined joint torques (Stage 2's input) at the instants
+                # of a coarser grid of trial time (still observation instants)
+                k = block.t * self.side_rate_hz
+                on_grid = np.abs(k - np.rint(k)) < 1e-6 * max(1.0, self.side_rate_hz)
+                torques = block if block.kind == 'refined' else None
+                block = block.part(block.kind, on_grid)
+                if torques is not None:
+                    self._publish_refined_torques(torques)
+                if block.t.size == 0:
+                    continue
             stamps = self.clock.stamps(block.t)
             topics = {
                 SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
@@ -320,9 +337,17 @@ class SkeletalTrackerNode(TrackerNode):
             }
             if block.kind == 'low_latency':
                 topics = {SKELETAL_LOW_LATENCY[k]: v for k, v in topics.items()}
+            elif self.side_rate_hz > 0:
+                del topics[SKELETAL_JOINT_TORQUES]
             self.publish_batches(stamps, topics)
             if block.kind == 'refined' and np.isfinite(received):
                 self.status.delay(time.monotonic() - received)
+
+    def _publish_refined_torques(self, block: EstimateBlock) -> None:
+        stamps = self.clock.stamps(block.t)
+        self.publish_batches(stamps, {SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
+            stamps, JOINTS, position=block.theta, velocity=block.theta_dot,
+            effort=block.tau)})
 
     def status_values(self) -> None:
         super().status_values()

@@ -19,10 +19,13 @@ class MovingHorizonSettings:
     """Trajectory resolution, window, weights and numerics of the estimator."""
 
     # --- trajectories and timing
-    knot_rate_hz: float = 240.0        # B-spline knots per second (q, a, s, b)
-    update_rate_hz: float = 60.0       # Gauss-Newton updates per second of data (each costs
-                                       # about the same at 60 and 120 Hz; 60 Hz halves the
-                                       # CPU at equal accuracy on the routine)
+    knot_rate_hz: float = 120.0        # B-spline knots per second (q, a, s, b): 240 gave
+                                       # the same torques on the routine at 1.5x the CPU
+    update_rate_hz: float = 40.0       # Gauss-Newton updates per second of data: each costs
+                                       # about the same at any rate; on 20 s of the routine
+                                       # 120 / 60 / 40 / 30 Hz took 1.5 / 0.65 / 0.5 / 0.5
+                                       # of a core (30 Hz: 29 restarts); 40 Hz is what a
+                                       # live node keeps up with on 2 shared cores
     lag_s: float = 0.05                # refined estimate: this far behind the newest data
     window_s: float = 0.1              # data span of the window (>= lag); older data is
                                        # marginalised into the arrival cost
@@ -93,7 +96,8 @@ class MovingHorizonSettings:
                                        # leaves the shank's rate uncertain by ~250 deg/s, and
                                        # a wrong rate is corrected only as fast as the
                                        # muscles' activation dynamics allow)
-    start_iterations: int = 40
+    start_iterations: int = 20         # (40: the same accuracy on the routine; a start
+                                       # blocks a live node, so it is kept short)
     start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
     # --- health (loss of control)
     max_backlog_s: float = 0.5         # data waiting this long: skip to the newest (live
