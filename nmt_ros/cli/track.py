@@ -18,12 +18,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Stage 2 over the whole horizon (the paper) or receding windows")
     parser.add_argument('--window', type=float, default=None,
                         help='Stage 2 window length H in s (windowed mode)')
-    parser.add_argument('--stage1', choices=('mhe', 'optimal_muscle', 'optimal', 'skt'),
-                        default='optimal_muscle',
+    parser.add_argument('--stage1', choices=('auto', 'mhe', 'optimal_muscle', 'optimal',
+                                             'skt'),
+                        default='auto',
                         help='Stage 1: optimal tracking of all observations over the trial with '
-                        'muscle-made joint torques (default: the most accurate, offline), the '
-                        "same with free joint torques, or the paper's skeletal motion tracker "
-                        '(what the live graph runs)')
+                        'muscle-made joint torques (the most accurate, for a clip: up to 1080 '
+                        'force-plate samples), '
+                        'the moving-horizon estimator the live graph runs (any length), the '
+                        "same optimal tracking with free joint torques, or the paper's "
+                        'skeletal motion tracker; auto (default): optimal_muscle up to 1080 '
+                        'samples, mhe beyond')
     parser.add_argument('--stage2-kr', type=float, default=None,
                         help='Stage 2 effort weight kR (default: stage2.yaml, the paper\'s 1000; '
                         'lower tracks the Stage-1 torques more closely)')

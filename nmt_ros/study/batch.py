@@ -32,6 +32,7 @@ from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
+from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.stage2 import load_stage2_settings
 
@@ -54,7 +55,7 @@ def _rate(t: np.ndarray, what: str, bag: Path) -> float:
 
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
               figures: bool = True, say: Callable[[str], None] = _quiet,
-              stage1: str = 'optimal_muscle', stage2_k_r: float | None = None,
+              stage1: str = 'auto', stage2_k_r: float | None = None,
               start_s: float | None = None) -> dict | None:
     """Run the NMT on ``bag``, write the outputs under ``out``; returns the metrics (None
     when the bag has no truth). ``window``: Stage 2 window length H [s] (windowed mode);
@@ -70,7 +71,16 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     rate_w = _rate(obs.t_wrench, 'force plate', bag)
     say(f'{bag}: {obs.t_angles.size} angle samples at {rate_a:.6g} Hz, {obs.t_wrench.size} '
         f'wrench samples at {rate_w:.6g} Hz, {obs.t_wrench[0]:.3f}..{obs.t_wrench[-1]:.3f} s')
-    start = plan_start(model, obs, start_s)
+    if stage1 == 'auto':
+        # the whole-trial optimal tracking is for a clip (its NLP grows with the record and
+        # is refused beyond max_intervals force-plate samples); a long stream is tracked by
+        # the moving-horizon estimator, as live
+        n = int((obs.t_wrench >= (start_s or obs.t_wrench[0]) - 1e-9).sum())
+        limit = OptimalTrackingSettings().max_intervals
+        stage1 = 'optimal_muscle' if n <= limit else 'mhe'
+        say(f'Stage 1: {stage1} ({n} force-plate samples to track; optimal tracking up to '
+            f'{limit})')
+    start = plan_start(model, obs, start_s, needs_state=stage1 != 'mhe')
     if start.balance is not None:
         b = start.balance
         if b.get('implied_mass_kg') is not None:
@@ -118,7 +128,20 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     record = Path(bag) / 'reference.json'
     if record.exists():
         po = json.loads(record.read_text()).get('po')
-    metrics = compute_metrics(model, run, truth, po)
+    if stage1 == 'mhe':
+        # a long stream (routine): the estimates against the truth phase by phase
+        from nmt_ros.study.phase_scores import format_phase_scores, phase_scores
+
+        metrics = {'stage1_phases': phase_scores(model, truth, run.skt.t, run.skt.tau,
+                                                 run.skt.muscles['f'])}
+        if run.stage2 is not None:
+            metrics['stage2_phases'] = phase_scores(model, truth, run.stage2.t, None,
+                                                    run.stage2.f)
+        say('Stage 1 (refined) vs truth by phase:\n' +
+            format_phase_scores(metrics['stage1_phases']))
+        figures = False
+    else:
+        metrics = compute_metrics(model, run, truth, po)
     metrics['source_bag'] = str(bag)
     metrics['stage1_method'] = stage1
     metrics['stage2_k_r'] = (stage2_k_r if stage2_k_r is not None

@@ -38,15 +38,17 @@ def truth_phases(truth: Truth, air_force_n: float = 1.0, landing_s: float = 0.15
             'moving': ~air & ~still & ~landing, 'flight': air, 'landing': landing & ~air}
 
 
-def phase_scores(model: JumperModel, truth: Truth, t: np.ndarray, tau: np.ndarray,
+def phase_scores(model: JumperModel, truth: Truth, t: np.ndarray, tau: np.ndarray | None,
                  f: np.ndarray | None = None, tol_s: float = 1e-6) -> dict[str, Any]:
     """Torque [% peak] and muscle-force [% F0] RMS errors per phase of estimates at instants
     ``t`` [s] (matched to truth instants within ``tol_s``; others are ignored), with the
-    number of instants scored and the coverage of each phase."""
+    number of instants scored and the coverage of each phase (``tau`` or ``f`` None: not
+    scored)."""
     t = np.asarray(t, dtype=float)
     k = np.clip(np.searchsorted(truth.t, t - tol_s), 0, truth.t.size - 1)
     ok = np.abs(truth.t[k] - t) <= tol_s
-    k, tau = k[ok], np.asarray(tau)[ok]
+    k = k[ok]
+    tau = None if tau is None else np.asarray(tau)[ok]
     f = None if f is None else np.asarray(f)[ok]
     peak = np.abs(truth.tau).max(axis=0)
     f0 = model.p.muscles.f0
@@ -61,9 +63,10 @@ def phase_scores(model: JumperModel, truth: Truth, t: np.ndarray, tau: np.ndarra
                                'coverage': float(covered[masks[name]].mean())
                                if masks[name].any() else float('nan')}
         if m.any():
-            err = np.sqrt(((tau[m] - truth.tau[k[m]]) ** 2).mean(axis=0)) / peak * 100
-            row['torque_rms_pct_peak'] = dict(zip(('ankle', 'knee', 'hip'),
-                                                  err.round(3).tolist()))
+            if tau is not None:
+                err = np.sqrt(((tau[m] - truth.tau[k[m]]) ** 2).mean(axis=0)) / peak * 100
+                row['torque_rms_pct_peak'] = dict(zip(('ankle', 'knee', 'hip'),
+                                                      err.round(3).tolist()))
             if f is not None:
                 fe = np.sqrt(((f[m] - truth.f[k[m]]) ** 2).mean(axis=0)) / f0 * 100
                 row['muscle_force_rms_pct_f0'] = {'mean': float(fe.mean().round(3)),
@@ -80,7 +83,8 @@ def format_phase_scores(scores: dict[str, Any]) -> str:
         row = scores.get(name)
         if not row or not row['n']:
             continue
-        tq = row['torque_rms_pct_peak']
+        tq = row.get('torque_rms_pct_peak', {j: float('nan') for j in ('ankle', 'knee',
+                                                                       'hip')})
         line = (f'{name:8s} {row["n"]:7d} {row["coverage"]:6.3f}  {tq["ankle"]:6.2f} '
                 f'{tq["knee"]:6.2f} {tq["hip"]:6.2f}')
         if 'muscle_force_rms_pct_f0' in row:

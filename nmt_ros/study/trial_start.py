@@ -61,7 +61,8 @@ def _rotated(theta: float, points: np.ndarray) -> np.ndarray:
 
 def plan_start(model: JumperModel, obs: Observations, start_s: float | None = None,
                conditioning: ConditioningSettings | None = None,
-               balance: BalanceSettings | None = None) -> TrialStart:
+               balance: BalanceSettings | None = None,
+               needs_state: bool = True) -> TrialStart:
     """The start of tracking on ``obs`` (module docstring); settings None: the defaults."""
     conditioning = conditioning if conditioning is not None else ConditioningSettings()
     balance = balance if balance is not None else BalanceSettings()
@@ -104,6 +105,10 @@ def plan_start(model: JumperModel, obs: Observations, start_s: float | None = No
     if any(a - 1e-9 <= t_s <= b + 1e-9 for a, b in phases):       # on the plates
         return start
     start.in_flight = True
+    if not needs_state:     # an estimator that starts from the data alone (moving horizon)
+        start.notes.append('the start is in flight; the moving-horizon estimator starts from '
+                           'the data (no start state needed)')
+        return start
     if not has_ankle:
         raise ValueError(
             f'tracking would start at {t_s:.3f} s with no load on the force plates (in flight '

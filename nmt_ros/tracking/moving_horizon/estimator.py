@@ -247,16 +247,7 @@ class MovingHorizonEstimator:
         w = self.window
         w.extend(self.grid.segment_of(t_u))
         w.add_samples(angles, wrench)
-        why = None
-        try:
-            self.damping = w.solve(self._to_relinearise(), st.iterations, self.damping,
-                                   check=st.check_steps)
-            if not (np.isfinite(w.C).all() and np.isfinite(w.plate).all()):
-                why = 'non-finite estimate'
-        except np.linalg.LinAlgError as exc:
-            why = f'singular step ({exc})'
-        if why is None:
-            why = self._outside_envelope(t_u)
+        why = self._gauss_newton(t_u, self._to_relinearise(), st.check_steps)
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
@@ -270,6 +261,20 @@ class MovingHorizonEstimator:
         if self.window is not None:
             self._slide(t_u)
         return blocks
+
+    def _gauss_newton(self, t_u: float, segments: np.ndarray, check: bool) -> str | None:
+        """The update's Gauss-Newton step(s); why the result is unusable (None: it is
+        not): a singular system, non-finite values or the physical envelope."""
+        w, st = self.window, self.settings
+        try:
+            # a diverging step shows as non-finite numbers: checked below, not warned about
+            with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+                self.damping = w.solve(segments, st.iterations, self.damping, check=check)
+        except np.linalg.LinAlgError as exc:
+            return f'singular step ({exc})'
+        if not (np.isfinite(w.C).all() and np.isfinite(w.plate).all()):
+            return 'non-finite estimate'
+        return self._outside_envelope(t_u)
 
     def _to_relinearise(self) -> np.ndarray:
         """The newest ``relinearise_s`` of segments, plus ``relinearise_older`` older ones in
