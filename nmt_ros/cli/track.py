@@ -59,7 +59,15 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f'nmt track: error: {err}', file=sys.stderr)
         return 2
-    if metrics:
+    if metrics and 'stage1_phases' in metrics:       # a long stream: scores by phase
+        from nmt_ros.study.phase_scores import format_phase_scores
+
+        for key, title in (('stage1_phases', 'Stage 1 (refined)'),
+                           ('stage2_phases', 'Stage 2 muscle forces')):
+            if key in metrics:
+                print(f'{title} vs truth by phase (RMS):')
+                print(format_phase_scores(metrics[key]))
+    elif metrics:
         from nmt_ros.study.report import summary_lines
 
         print('\n'.join(summary_lines(metrics)))
