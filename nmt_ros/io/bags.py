@@ -53,6 +53,7 @@ import numpy as np
 import yaml
 
 from msg_adapters.cdr_arrays import decode_joint_states, decode_wrenches
+from msg_adapters.cdr_padding import zero_padding
 from msg_adapters.series import JointStateSeries, WrenchSeries
 
 from . import msgdefs
@@ -472,7 +473,8 @@ class BagWriter:
             data = bytes(msg)
         else:
             from rclpy.serialization import serialize_message
-            data = serialize_message(msg)
+            # rclpy leaves CDR padding as garbage: zeroed, the same data are the same file
+            data = zero_padding(serialize_message(msg), msgdefs.message_type_name(msg))
         log_time_ns = int(log_time_ns)
         if self._should_split(log_time_ns):
             self.split()
