@@ -67,6 +67,11 @@ from nmt_ros.tracking.streaming import Stage1Output, Stage1Stream
 NODE_NAME = 'skeletal_tracker'
 
 
+#: Stage 1's output topics, in publishing order (the first: the joint torques)
+SKELETAL_TOPICS = (SKELETAL_JOINT_TORQUES, SKELETAL_SEGMENT_ANGLES,
+                   SKELETAL_GENERALIZED_COORDINATES, SKELETAL_GROUND_WRENCH)
+
+
 class SkeletalTrackerNode(TrackerNode):
     """Stage 1 as a node (see the module docstring)."""
 
@@ -293,61 +298,51 @@ class SkeletalTrackerNode(TrackerNode):
             self.publish_status()
         if out is None or out.t.size == 0:
             return
-        stamps = self.clock.stamps(out.t)
-        self.publish_batches(stamps, {
-            SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
-                stamps, JOINTS, position=out.joint_angles, velocity=out.joint_rates,
-                effort=out.tau),
-            SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
-                stamps, SEGMENTS, position=out.q[:, :4], velocity=out.qd[:, :4]),
-            SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
-                stamps, Q_NAMES, position=out.q, velocity=out.qd),
-            SKELETAL_GROUND_WRENCH: planar_wrenches_from_arrays(stamps, WRENCH_FRAME, out.s),
-        })
+        self._publish_estimates(out.t, out.joint_angles, out.joint_rates, out.tau, out.q,
+                                out.qd, out.s, SKELETAL_TOPICS)
         if np.isfinite(received):
             self.status.delay(time.monotonic() - received)
 
     def _publish_blocks(self, blocks: list[EstimateBlock], received: float) -> None:
-        """Refined blocks on the main topics, low-latency ones on the low-latency topics."""
+        """Refined blocks on the main topics, low-latency ones on the low-latency topics. With
+        ``side_rate_hz``, every topic but the refined joint torques (Stage 2's input) only at
+        the instants of that coarser grid of trial time (still observation instants)."""
         for block in blocks:
-            if block.t.size == 0:
-                continue
+            refined = block.kind == 'refined'
+            topics = SKELETAL_TOPICS if refined else tuple(
+                SKELETAL_LOW_LATENCY[t] for t in SKELETAL_TOPICS)
             if self.side_rate_hz > 0:
-                # every topic but the refined joint torques (Stage 2's input) at the instants
-                # of a coarser grid of trial time (still observation instants)
+                if refined:
+                    self._publish_block(block, topics[:1])
+                    topics = topics[1:]
                 k = block.t * self.side_rate_hz
-                on_grid = np.abs(k - np.rint(k)) < 1e-6 * max(1.0, self.side_rate_hz)
-                torques = block if block.kind == 'refined' else None
-                block = block.part(block.kind, on_grid)
-                if torques is not None:
-                    self._publish_refined_torques(torques)
-                if block.t.size == 0:
-                    continue
-            stamps = self.clock.stamps(block.t)
-            topics = {
-                SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
-                    stamps, JOINTS, position=block.theta, velocity=block.theta_dot,
-                    effort=block.tau),
-                SKELETAL_SEGMENT_ANGLES: joint_states_from_arrays(
-                    stamps, SEGMENTS, position=block.q[:, :4], velocity=block.qd[:, :4]),
-                SKELETAL_GENERALIZED_COORDINATES: joint_states_from_arrays(
-                    stamps, Q_NAMES, position=block.q, velocity=block.qd),
-                SKELETAL_GROUND_WRENCH: planar_wrenches_from_arrays(stamps, WRENCH_FRAME,
-                                                                    block.s),
-            }
-            if block.kind == 'low_latency':
-                topics = {SKELETAL_LOW_LATENCY[k]: v for k, v in topics.items()}
-            elif self.side_rate_hz > 0:
-                del topics[SKELETAL_JOINT_TORQUES]
-            self.publish_batches(stamps, topics)
-            if block.kind == 'refined' and np.isfinite(received):
+                block = block.part(block.kind, np.abs(k - np.rint(k)) < 1e-6 * max(
+                    1.0, self.side_rate_hz))
+            self._publish_block(block, topics)
+            if refined and np.isfinite(received):
                 self.status.delay(time.monotonic() - received)
 
-    def _publish_refined_torques(self, block: EstimateBlock) -> None:
-        stamps = self.clock.stamps(block.t)
-        self.publish_batches(stamps, {SKELETAL_JOINT_TORQUES: joint_states_from_arrays(
-            stamps, JOINTS, position=block.theta, velocity=block.theta_dot,
-            effort=block.tau)})
+    def _publish_block(self, block: EstimateBlock, topics: tuple[str, ...]) -> None:
+        self._publish_estimates(block.t, block.theta, block.theta_dot, block.tau, block.q,
+                                block.qd, block.s, topics)
+
+    def _publish_estimates(self, t: np.ndarray, theta: np.ndarray, theta_dot: np.ndarray,
+                           tau: np.ndarray, q: np.ndarray, qd: np.ndarray, s: np.ndarray,
+                           topics: tuple[str, ...]) -> None:
+        """Stage 1's estimates at trial times t [s] on ``topics`` (a subset of
+        SKELETAL_TOPICS or their low-latency names, in that order)."""
+        if t.size == 0:
+            return
+        stamps = self.clock.stamps(t)
+        make = (lambda: joint_states_from_arrays(stamps, JOINTS, position=theta,
+                                                 velocity=theta_dot, effort=tau),
+                lambda: joint_states_from_arrays(stamps, SEGMENTS, position=q[:, :4],
+                                                 velocity=qd[:, :4]),
+                lambda: joint_states_from_arrays(stamps, Q_NAMES, position=q, velocity=qd),
+                lambda: planar_wrenches_from_arrays(stamps, WRENCH_FRAME, s))
+        names = dict(zip(SKELETAL_TOPICS, make))
+        names.update({SKELETAL_LOW_LATENCY[k]: v for k, v in zip(SKELETAL_TOPICS, make)})
+        self.publish_batches(stamps, {topic: names[topic]() for topic in topics})
 
     def status_values(self) -> None:
         super().status_values()
