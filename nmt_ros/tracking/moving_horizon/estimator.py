@@ -248,6 +248,10 @@ class MovingHorizonEstimator:
         w.extend(self.grid.segment_of(t_u))
         w.add_samples(angles, wrench)
         why = self._gauss_newton(t_u, self._to_relinearise(), st.check_steps)
+        if (why is None and st.rescue_iterations
+                and self._newest_cost_per_row() > st.rescue_cost_per_row):
+            why = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True,
+                                     st.rescue_iterations)
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
@@ -262,14 +266,17 @@ class MovingHorizonEstimator:
             self._slide(t_u)
         return blocks
 
-    def _gauss_newton(self, t_u: float, segments: np.ndarray, check: bool) -> str | None:
-        """The update's Gauss-Newton step(s); why the result is unusable (None: it is
-        not): a singular system, non-finite values or the physical envelope."""
+    def _gauss_newton(self, t_u: float, segments: np.ndarray, check: bool,
+                      iterations: int | None = None) -> str | None:
+        """The update's Gauss-Newton step(s) (``iterations``, default the settings'); why
+        the result is unusable (None: it is not): a singular system, non-finite values or the
+        physical envelope."""
         w, st = self.window, self.settings
         try:
             # a diverging step shows as non-finite numbers: checked below, not warned about
             with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
-                self.damping = w.solve(segments, st.iterations, self.damping, check=check)
+                self.damping = w.solve(segments, iterations or st.iterations, self.damping,
+                                       check=check)
         except np.linalg.LinAlgError as exc:
             return f'singular step ({exc})'
         if not (np.isfinite(w.C).all() and np.isfinite(w.plate).all()):
@@ -289,15 +296,21 @@ class MovingHorizonEstimator:
             pick.append(older[self.round_robin])
         return np.unique(np.concatenate([newest, np.array(pick, dtype=np.int64)]))
 
-    def _healthy(self, t_u: float) -> bool:
-        """The newest data explained: mean normalised residual^2 of the angle and wrench
-        rows over the newest segments below ``max_cost_per_row`` (else, for longer than
-        ``recover_after_s``, a loss of control)."""
+    def _newest_cost_per_row(self) -> float:
+        """Mean normalised residual^2 of the angle and wrench rows over the newest
+        ``relinearise_s`` of segments (their kept linearisations)."""
         st, w = self.settings, self.window
         n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
         kept = w.rows(np.arange(max(w.first, w.last - n_new + 1), w.last + 1))
-        per_row = float(kept[:, 0].sum() + kept[:, 2].sum()) / max(
+        return float(kept[:, 0].sum() + kept[:, 2].sum()) / max(
             float(kept[:, 1].sum() + kept[:, 3].sum()), 1.0)
+
+    def _healthy(self, t_u: float) -> bool:
+        """The newest data explained: their cost per row (``_newest_cost_per_row``) below
+        ``max_cost_per_row`` (else, for longer than ``recover_after_s``, a loss of
+        control)."""
+        st = self.settings
+        per_row = self._newest_cost_per_row()
         if per_row > st.max_cost_per_row:
             if self.unhealthy_since is None:
                 self.unhealthy_since = t_u
