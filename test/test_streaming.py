@@ -9,7 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nmt_ros.tracking.streaming import Stage1Stream, Stage2Stream, initial_activations
+from nmt_ros.tracking.streaming import (
+    Decimator,
+    Stage1Stream,
+    Stage2Stream,
+    initial_activations,
+)
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'reference_jump'
 
@@ -212,3 +217,27 @@ def test_stage2_stream_output_does_not_depend_on_how_the_input_was_cut():
     for key in ('t', 'f', 'a', 'u', 'saturated'):
         np.testing.assert_array_equal(bursts[key], one[key], err_msg=key)
         np.testing.assert_array_equal(whole[key], one[key], err_msg=key)
+
+
+def test_decimator_keeps_one_instant_per_period_whatever_the_rate_and_blocks():
+    # 1080 Hz thinned to 120 Hz: exactly the multiples of 1/120 s (every 9th instant)
+    t = np.arange(2160) / 1080.0
+    kept = Decimator(120.0).keep(t)
+    assert np.array_equal(np.nonzero(kept)[0], np.arange(0, 2160, 9))
+    # the same split into uneven blocks
+    d = Decimator(120.0)
+    cuts = [0, 5, 6, 100, 101, 1500, 2160]
+    split = np.concatenate([d.keep(t[a:b]) for a, b in zip(cuts[:-1], cuts[1:])])
+    assert np.array_equal(split, kept)
+    # a slower stream (100 Hz, 0.25 s offset) is not thinned at 120 Hz: every instant kept
+    t100 = 0.25 + np.arange(300) / 100.0
+    assert Decimator(120.0).keep(t100).all()
+    # 1000 Hz thinned to 120 Hz: one instant per 1/120 s period, the first in it
+    t1000 = np.arange(1000) / 1000.0
+    mask = Decimator(120.0).keep(t1000)
+    periods = np.floor(t1000 * 120.0 + 1e-6)
+    assert mask.sum() == np.unique(periods).size == 120
+    assert np.array_equal(t1000[mask], np.array([t1000[periods == k][0]
+                                                 for k in np.unique(periods)]))
+    with pytest.raises(ValueError, match='positive'):
+        Decimator(0.0)

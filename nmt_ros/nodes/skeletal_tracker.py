@@ -62,7 +62,7 @@ from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.moving_horizon.estimator import EstimateBlock, MovingHorizonEstimator
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
-from nmt_ros.tracking.streaming import Stage1Output, Stage1Stream
+from nmt_ros.tracking.streaming import Decimator, Stage1Output, Stage1Stream
 
 NODE_NAME = 'skeletal_tracker'
 
@@ -102,6 +102,7 @@ class SkeletalTrackerNode(TrackerNode):
                               'wrench, the low-latency topics) [Hz]; 0 = every force-plate '
                               'instant (publishing costs ~0.1 ms per message)', low=0.0,
                               high=100000.0)
+        self.side_decimators = self._side_decimators()
         self.lookahead_s = p('lookahead_s', 0.1, 'look-ahead of the zero-lag filters [s]: '
                              'latency vs accuracy (bench/bench_latency.py)', low=0.0, high=2.0)
         self.filter_window_s = p('filter_window_s', 0.5, 'history the live filter keeps [s]',
@@ -268,6 +269,7 @@ class SkeletalTrackerNode(TrackerNode):
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
         self.polled_until = -np.inf
+        self.side_decimators = self._side_decimators()
         self.first_pending = np.inf
         self.status.extra['epoch_ns'] = epoch_ns
         if self.mhe is not None:
@@ -287,6 +289,12 @@ class SkeletalTrackerNode(TrackerNode):
         return 'lost_control' if self.stream.status != 'ok' else 'finished'
 
     # ------------------------------------------------------------------ outputs
+    def _side_decimators(self) -> dict[str, Decimator]:
+        """A fresh ``side_rate_hz`` decimator per estimate kind (none at 0: every instant)."""
+        if self.side_rate_hz <= 0:
+            return {}
+        return {kind: Decimator(self.side_rate_hz) for kind in ('refined', 'low_latency')}
+
     def _publish(self, out: Stage1Output | None, received: float) -> None:
         if self.stream.status != 'ok' and self.status.state != 'lost_control':
             ev = self.stream.events[0] if self.stream.events else {}
@@ -306,7 +314,7 @@ class SkeletalTrackerNode(TrackerNode):
     def _publish_blocks(self, blocks: list[EstimateBlock], received: float) -> None:
         """Refined blocks on the main topics, low-latency ones on the low-latency topics. With
         ``side_rate_hz``, every topic but the refined joint torques (Stage 2's input) only at
-        the instants of that coarser grid of trial time (still observation instants)."""
+        the first observation instant of each period of that rate (``Decimator``)."""
         for block in blocks:
             refined = block.kind == 'refined'
             topics = SKELETAL_TOPICS if refined else tuple(
@@ -315,9 +323,7 @@ class SkeletalTrackerNode(TrackerNode):
                 if refined:
                     self._publish_block(block, topics[:1])
                     topics = topics[1:]
-                k = block.t * self.side_rate_hz
-                block = block.part(block.kind, np.abs(k - np.rint(k)) < 1e-6 * max(
-                    1.0, self.side_rate_hz))
+                block = block.part(block.kind, self.side_decimators[block.kind].keep(block.t))
             self._publish_block(block, topics)
             if refined and np.isfinite(received):
                 self.status.delay(time.monotonic() - received)

@@ -291,6 +291,29 @@ def initial_activations(model: JumperModel, theta: np.ndarray, tau: np.ndarray,
     return rest.a, None
 
 
+class Decimator:
+    """Thins a time-ordered stream of instants to at most ``rate_hz``: an instant is kept
+    when it is the first of its period [k / rate_hz, (k + 1) / rate_hz) of trial time. A
+    function of the instants alone (the same output however they are split into blocks),
+    and a stream at any rate keeps one instant per period (data at 100 Hz thinned to 120 Hz
+    keep every instant; at 1080 Hz, the multiples of 1/120 s)."""
+
+    def __init__(self, rate_hz: float) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f'decimation rate must be positive, not {rate_hz!r} Hz')
+        self.rate_hz = float(rate_hz)
+        self.last_period = -np.inf        # period index of the last kept instant
+
+    def keep(self, t: np.ndarray) -> np.ndarray:
+        """Mask [n] of the instants t [n] s (increasing, after those seen before) kept."""
+        k = np.floor(np.asarray(t, dtype=float) * self.rate_hz + 1e-6)
+        prev = np.concatenate([[self.last_period], k[:-1]])
+        mask = k > prev
+        if k.size:
+            self.last_period = max(self.last_period, float(k[-1]))
+        return mask
+
+
 def snap_to_grid(t: float, rate_hz: float) -> float:
     """Trial time t [s] snapped to the nominal sample grid k / rate_hz."""
     return round(t * rate_hz) / rate_hz
