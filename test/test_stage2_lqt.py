@@ -291,3 +291,61 @@ def test_discrete_lqt_tends_to_the_continuous_lqt():
         errs.append(np.abs(disc - cont).max())
     order = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert np.all(order > 1.8), (errs, order)          # second order in h
+
+
+def test_force_term_is_the_dense_minimiser_and_forgets_the_start_co_contraction():
+    """Eq. 11 + 1/2 int f' K_f f dt through ``with_force_term`` (extra tracked outputs) and
+    the discrete LQT equals the minimiser of the same discrete cost written out densely
+    (numpy, no Riccati): trapezoid-weighted tracking and force terms, rate effort
+    1/2 h |(f_i+1 - f_i) / h|_R^2, f_0 given. Two starts that differ only by co-contraction
+    (a force pattern in the null space of C): the paper's Eq. 11 carries the difference to
+    the end, the force term forgets it; both track the torques alike."""
+    C0, Q, R = _jumper_problem()
+    from nmt_ros.model.jumper import default_model
+
+    f0_peak = default_model().p.muscles.f0
+    r = np.diag(R)
+    n, m, h = 121, 9, 0.005                               # 0.6 s
+    t = np.arange(n) * h
+    C = C0[None] * (1 + 0.2 * np.sin(15 * t))[:, None, None]   # null space of C0 kept
+    tau = np.stack([60 + 40 * np.sin(10 * t), -30 * np.cos(8 * t), -50 - 100 * t], axis=1)
+    null = np.linalg.svd(C0)[2][-1]                       # C0 null = 0
+    base = np.linalg.lstsq(C0, tau[0], rcond=None)[0]
+    k_force = 1e5 / f0_peak ** 2
+
+    def dense(kf: np.ndarray, f_start: np.ndarray) -> np.ndarray:
+        w = np.full(n, h)
+        w[0] = w[-1] = 0.5 * h
+        N = (n - 1) * m
+        H, g = np.zeros((N, N)), np.zeros(N)
+        for i in range(1, n):                             # tracking and force terms
+            s = slice((i - 1) * m, i * m)
+            H[s, s] += w[i] * (C[i].T @ Q @ C[i] + np.diag(kf))
+            g[s] += w[i] * C[i].T @ Q @ tau[i]
+        D = np.eye(N) - np.eye(N, k=-m)                   # rows: f_i+1 - f_i, i = 0..n-2
+        d0 = np.zeros(N)
+        d0[:m] = -f_start
+        Rh = np.kron(np.eye(n - 1), np.diag(r / h))
+        H += D.T @ Rh @ D
+        g -= D.T @ Rh @ d0
+        return np.vstack([f_start, np.linalg.solve(H, g).reshape(n - 1, m)])
+
+    ones = np.ones((n - 1, m))
+    ends = {}
+    for name, kf in (('paper', None), ('force', k_force)):
+        C_y, y_ref, Q_y, _ = lqt.with_force_term(C, tau, Q, None, kf)
+        dl = lqt.discrete_lqt(h, C_y, y_ref, Q_y, r, np.ones((n, m)), np.zeros((n, m)))
+        runs = []
+        for sign in (1.0, -1.0):
+            start = base + sign * 1000.0 * null
+            f = oracles.simulate_discrete(dl, start, ones, ones > 0, 0 * ones)
+            np.testing.assert_allclose(f, dense(np.zeros(m) if kf is None else kf, start),
+                                       rtol=0, atol=1e-6 * np.abs(f).max())
+            err = np.einsum('npm,nm->np', C, f)[20:] - tau[20:]
+            assert np.sqrt(np.mean(err ** 2)) < 0.02 * np.abs(tau).max()
+            runs.append(f)
+        ends[name] = float(np.abs((runs[0] - runs[1])[-1] @ null))
+    assert ends['paper'] > 0.9 * 2000.0, ends             # the start's difference kept
+    assert ends['force'] < 0.05 * ends['paper'], ends     # ... and forgotten
+    # zero weight: the arguments unchanged
+    assert lqt.with_force_term(C, tau, Q, None, np.zeros(m))[0] is C

@@ -25,8 +25,9 @@ def tracker() -> NeuromuscularTracker:
 
 @pytest.fixture(scope='module')
 def clip_tracker(tracker) -> NeuromuscularTracker:
-    """The paper's Stage 2: unconstrained LQT, excitations clipped to [0, 1]."""
-    return NeuromuscularTracker(tracker.model, load_stage2_settings(saturation='clip'))
+    """The paper's Stage 2: unconstrained LQT, excitations clipped to [0, 1], Eq. 11 without
+    the force term."""
+    return NeuromuscularTracker(tracker.model, load_stage2_settings(saturation='clip', k_f=0.0))
 
 
 @pytest.fixture(scope='module')

@@ -86,9 +86,11 @@ class WindowPlanner:
 
     def __init__(self, settings: Stage2Settings, Q: np.ndarray, R: np.ndarray, P: np.ndarray,
                  f0: np.ndarray, activation: ActivationLaw) -> None:
-        """Q [3, 3], R diagonal [m], P [3, 3] of Eq. 11; f0 [m] peak isometric forces (N)."""
+        """Q [3, 3], R diagonal [m], P [3, 3] of Eq. 11; f0 [m] peak isometric forces (N);
+        the force term K_f from ``settings.k_f`` (``lqt.with_force_term``)."""
         self.settings = settings
         self.Q, self.R, self.P = Q, R, P
+        self.k_force = settings.force_weight(f0)
         self.f0 = f0
         self.activation = activation
 
@@ -164,8 +166,10 @@ class WindowPlanner:
         r = ref.rows(start, stop + 1)
         s = slice(start - ref.offset, stop + 1 - ref.offset)
         lo, hi = self.activation.bounds(ref.grid.h)
-        return bounded_lqt_qp(ref.grid.h, r['C'], r['tau_ref'], self.Q, self.R, ref.phi[s],
-                              ref.psi[s], a0, lo, hi, P=self.P)
+        C_y, y_ref, Q_y, P_y = lqt.with_force_term(r['C'], r['tau_ref'], self.Q, self.P,
+                                                   self.k_force)
+        return bounded_lqt_qp(ref.grid.h, C_y, y_ref, Q_y, self.R, ref.phi[s], ref.psi[s], a0,
+                              lo, hi, P=P_y)
 
     def bounded_plan(self, ref: Stage2Reference, a0: np.ndarray, start: int,
                      stop: int) -> BoundedLqtSolution:
@@ -205,8 +209,9 @@ class WindowPlanner:
         rows = ref.rows(start, stop + 1)
         sl = slice(start - ref.offset, stop + 1 - ref.offset)
         phi, psi = ref.phi[sl], ref.psi[sl]
-        dl = lqt.discrete_lqt(h, rows['C'], rows['tau_ref'], self.Q, self.R, phi, psi,
-                              E, free, c, P=self.P)
+        C_y, y_ref, Q_y, P_y = lqt.with_force_term(rows['C'], rows['tau_ref'], self.Q,
+                                                   self.P, self.k_force)
+        dl = lqt.discrete_lqt(h, C_y, y_ref, Q_y, self.R, phi, psi, E, free, c, P=P_y)
         k = min(stride, stop - start)
         # W, g in force units (f = phi a + psi) for the output
         ph = np.maximum(np.abs(phi[:k + 1]), 1e-9 * self.f0) * np.where(phi[:k + 1] < 0, -1, 1)

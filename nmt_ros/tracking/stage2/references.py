@@ -72,10 +72,13 @@ class ReferenceBuilder:
     """Builds and extends ``Stage2Reference``s for one model and one set of LQT weights."""
 
     def __init__(self, model: JumperModel, Q: np.ndarray, R: np.ndarray, P: np.ndarray,
-                 max_step: float, sweeps: bool = True) -> None:
+                 max_step: float, sweeps: bool = True,
+                 k_force: np.ndarray | None = None) -> None:
         """Q [3, 3], R diagonal [m], P [3, 3] of Eq. 11; max_step [s] of the internal grid;
-        ``sweeps``: prepare the grid's sweep data (``lqt.prepare_grid``; 'clip' mode)."""
+        ``sweeps``: prepare the grid's sweep data (``lqt.prepare_grid``; 'clip' mode);
+        k_force: the force term's K_f diagonal [m] (``lqt.with_force_term``; None: none)."""
         self.sweeps = sweeps
+        self.k_force = k_force
         self.model = model
         self.Q, self.R, self.P = Q, R, P
         self.max_step = max_step
@@ -127,8 +130,11 @@ class ReferenceBuilder:
             self._rows, theta, theta_dot, theta_ddot)
         C = C.reshape(n, 3, self.n_muscles)
         h = None if dt is None else dt / substeps
-        grid = (lqt.prepare_grid(t, C, tau_ref, self.Q, self.R, self.P, h=h,
-                                 sweeps=self.sweeps) if n >= 2 else None)
+        grid = None
+        if n >= 2:
+            C_y, y_ref, Q_y, P_y = lqt.with_force_term(C, tau_ref, self.Q, self.P,
+                                                       self.k_force)
+            grid = lqt.prepare_grid(t, C_y, y_ref, Q_y, self.R, P_y, h=h, sweeps=self.sweeps)
         return Stage2Reference(offset=offset, substeps=substeps, t=t, tau_ref=tau_ref,
                                theta=theta, theta_dot=theta_dot, theta_ddot=theta_ddot, C=C,
                                v_mt=v_mt, vdot_mt=vdot_mt, phi=phi, psi=psi, dfdl_0=dl0,

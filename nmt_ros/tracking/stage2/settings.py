@@ -18,7 +18,9 @@ SETTINGS_FILE = Path(__file__).resolve().parents[1] / 'data' / 'stage2.yaml'
 class Stage2Settings:
     """LQT weights (Appendix B), saturation handling and window options (``data/stage2.yaml``).
 
-    P = k_p I3, Q = k_q I3, R = k_r diag(r_i / F0_i^2) with r keyed by muscle name.
+    P = k_p I3, Q = k_q I3, R = k_r diag(r_i / F0_i^2) with r keyed by muscle name; k_f
+    (0: the paper) adds 1/2 int f' K_f f dt with K_f = k_f diag(1 / F0_i^2) to Eq. 11
+    (``lqt.with_force_term``).
     window_length H [s]; window_stride [s] (None: one sample of the reference grid);
     max_step [s]: input intervals longer than this are split into substeps (``references``).
     saturation: 'plan' (default; the excitation bounds are part of the problem: a bounded-LQT
@@ -41,10 +43,19 @@ class Stage2Settings:
     saturation_margin: float = 1e-3
     plan_tol: float = 1e-7
     plan_max_iterations: int = 60
+    k_f: float = 0.0          # force term of Eq. 11 (beyond the paper): K_f = k_f diag(1/F0^2)
 
     def __post_init__(self) -> None:
         if self.saturation not in ('plan', 'clip'):
             raise ValueError(f"saturation must be 'plan' or 'clip', not {self.saturation!r}")
+
+    def force_weight(self, f0: np.ndarray) -> np.ndarray | None:
+        """K_f diagonal [m] (1/N^2 per s) for peak forces f0 [m] (N); None when k_f is 0."""
+        if self.k_f == 0:
+            return None
+        if self.k_f < 0:
+            raise ValueError(f'k_f must be >= 0, not {self.k_f}')
+        return self.k_f / np.asarray(f0, dtype=float) ** 2
 
     def weights(self, names: tuple[str, ...], f0: np.ndarray,
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -65,7 +76,7 @@ def load_stage2_settings(path: str | Path | None = None, **overrides: object) ->
     stride = d.get('window_stride')
     optional = {}
     for key, kind in (('saturation', str), ('saturation_margin', float), ('plan_tol', float),
-                      ('plan_max_iterations', int)):
+                      ('plan_max_iterations', int), ('k_f', float)):
         if d.get(key) is not None:
             optional[key] = kind(d[key])
     settings = Stage2Settings(

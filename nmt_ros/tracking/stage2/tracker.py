@@ -43,7 +43,8 @@ class NeuromuscularTracker:
         self.activation = ActivationLaw.from_model(self.model)
         self.references = ReferenceBuilder(self.model, self.Q, self.R, self.P,
                                            self.settings.max_step,
-                                           sweeps=self.settings.saturation == 'clip')
+                                           sweeps=self.settings.saturation == 'clip',
+                                           k_force=self.settings.force_weight(self.f0))
         self.planner = WindowPlanner(self.settings, self.Q, self.R, self.P, self.f0,
                                      self.activation)
 
