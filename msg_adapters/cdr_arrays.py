@@ -1,4 +1,4 @@
-"""Decode CDR-serialised JointState / WrenchStamped messages straight into numpy arrays.
+"""CDR-serialised JointState / WrenchStamped messages straight to and from numpy arrays.
 
 A topic's messages normally share one layout (same joint names, same array lengths, same
 frame id), hence the same byte length. Then the serialised messages are stacked into a
@@ -6,6 +6,12 @@ frame id), hence the same byte length. Then the serialised messages are stacked 
 The layout is taken from the first message; a message that differs in length or in any
 structural byte (string lengths and characters, sequence counts) is decoded individually.
 Padding bytes are ignored (rclpy leaves them uninitialised).
+
+Encoding is the same idea backwards (``encode_joint_states``, ``encode_wrenches``): one
+message of the topic's layout is written field by field (little endian, padding zero), its
+rows are tiled and the stamps and values written into columns; a live node publishes the
+bytes (``Publisher.publish`` takes serialised messages) instead of building a Python message
+object per sample (~50 us each at 1080 Hz).
 
 CDR (XCDR1, plain): 4-byte encapsulation header (byte 1: 0x01 little endian, 0x00 big
 endian), then each primitive aligned to its size relative to the end of that header; strings
@@ -203,3 +209,95 @@ def decode_wrenches(blobs: Sequence[bytes],
         values[i] = parsed['values']
     return WrenchSeries(stamp_ns=stamp_ns, frame_id=first['frame_id'], force=values[:, :3],
                         torque=values[:, 3:], log_time_ns=log)
+
+
+# ---------------------------------------------------------------------------- encoding
+class _Writer:
+    """Sequential little-endian CDR writer (padding zero)."""
+
+    def __init__(self) -> None:
+        self.b = bytearray(b'\x00\x01\x00\x00')
+
+    def align(self, size: int) -> None:
+        self.b += bytes((-(len(self.b) - _HEADER)) % size)
+
+    def uint32(self, value: int) -> None:
+        self.align(4)
+        self.b += struct.pack('<I', value)
+
+    def string(self, text: str) -> None:
+        raw = text.encode('utf-8') + b'\x00'
+        self.uint32(len(raw))
+        self.b += raw
+
+    def header(self, frame_id: str) -> None:
+        self.uint32(0)           # sec, nanosec: written per message
+        self.uint32(0)
+        self.string(frame_id)
+
+    def float64s(self, n: int) -> None:
+        if n:
+            self.align(8)
+            self.b += bytes(8 * n)
+
+    def done(self) -> bytes:
+        return bytes(self.b)
+
+
+def _fill(template: bytes, stamp_ns: np.ndarray,
+          blocks: Sequence[tuple[int, np.ndarray]]) -> list[bytes]:
+    """Rows of ``template`` with header stamps ``stamp_ns [n]`` and float64 ``blocks``
+    (offset, values [n, k]) written in; one bytes object per row."""
+    n = stamp_ns.shape[0]
+    matrix = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    sec, nanosec = np.divmod(stamp_ns, 1_000_000_000)
+    if n and (sec.min() < -2 ** 31 or sec.max() >= 2 ** 31):
+        raise ValueError('header stamp outside the int32 seconds of builtin_interfaces/Time')
+    matrix[:, _HEADER:_HEADER + 4] = sec.astype('<i4').view(np.uint8).reshape(n, 4)
+    matrix[:, _HEADER + 4:_HEADER + 8] = nanosec.astype('<u4').view(np.uint8).reshape(n, 4)
+    for offset, values in blocks:
+        k = values.shape[1]
+        matrix[:, offset:offset + 8 * k] = np.ascontiguousarray(
+            values, dtype='<f8').view(np.uint8).reshape(n, 8 * k)
+    row = matrix.shape[1]
+    flat = matrix.tobytes()
+    return [flat[i * row:(i + 1) * row] for i in range(n)]
+
+
+def encode_joint_states(stamp_ns: np.ndarray, names: Sequence[str], position: np.ndarray,
+                        velocity: np.ndarray, effort: np.ndarray,
+                        frame_id: str = '') -> list[bytes]:
+    """``sensor_msgs/msg/JointState`` CDR messages (little endian, padding zero) from stamps
+    [n] (ns) and [n, k] position, velocity, effort for the k ``names`` (already validated:
+    ``msg_adapters.joint_state.joint_state_blobs`` is the checked entry point)."""
+    k = len(names)
+    w = _Writer()
+    w.header(frame_id)
+    w.uint32(k)
+    for name in names:
+        w.string(name)
+    for _ in range(3):
+        w.uint32(k)
+        w.float64s(k)
+    template = w.done()
+    fields = _parse_joint_state(template)['fields']
+    return _fill(template, stamp_ns, [(fields[f][0], np.asarray(v, dtype=float).reshape(-1, k))
+                                      for f, v in (('position', position),
+                                                   ('velocity', velocity),
+                                                   ('effort', effort)) if k])
+
+
+def encode_wrenches(stamp_ns: np.ndarray, force: np.ndarray, torque: np.ndarray,
+                    frame_id: str = '') -> list[bytes]:
+    """``geometry_msgs/msg/WrenchStamped`` CDR messages (little endian, padding zero) from
+    stamps [n] (ns), force and torque [n, 3] (already validated: see
+    ``msg_adapters.wrench.wrench_blobs``)."""
+    w = _Writer()
+    w.header(frame_id)
+    w.float64s(6)
+    template = w.done()
+    offset = _parse_wrench(template)['offset']
+    values = np.hstack([np.asarray(force, dtype=float).reshape(-1, 3),
+                        np.asarray(torque, dtype=float).reshape(-1, 3)])
+    return _fill(template, stamp_ns, [(offset, values)])

@@ -26,6 +26,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
+from .cdr_arrays import encode_joint_states
 from .series import JointStateSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite, check_names, reorder_index
@@ -127,6 +128,25 @@ def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = 
             setattr(msg, f, values)
         out.append(msg)
     return out
+
+
+def joint_state_blobs(stamps: Any, names: Sequence[str], position: Any = None,
+                      velocity: Any = None, effort: Any = None, *, frame_id: str = '',
+                      allow_nan: bool = False) -> list[bytes]:
+    """The messages of :func:`joint_states_from_arrays` (same arguments, same checks),
+    serialised (CDR, padding zero) without building message objects: what a node publishes
+    at high rates (``Publisher.publish`` takes bytes)."""
+    names = check_names(names)
+    stamp_ns = stamps_to_ns(stamps)
+    n, k = stamp_ns.shape[0], len(names)
+    given = {'position': position, 'velocity': velocity, 'effort': effort}
+    if all(v is None for v in given.values()):
+        raise ValueError('JointState needs at least one of position, velocity, effort')
+    blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None
+                  else as_matrix(v, n, k, f, names, allow_nan=allow_nan))
+              for f, v in given.items()}
+    return encode_joint_states(stamp_ns, names, blocks['position'], blocks['velocity'],
+                               blocks['effort'], frame_id)
 
 
 def joint_states_to_arrays(msgs: Sequence[JointState], names: Sequence[str] | None = None,

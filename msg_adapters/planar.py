@@ -17,7 +17,7 @@ from geometry_msgs.msg import WrenchStamped
 import numpy as np
 
 from .validation import as_matrix, as_vector, check_finite
-from .wrench import from_wrench_stamped, wrenches_from_arrays, wrenches_to_arrays
+from .wrench import from_wrench_stamped, wrench_blobs, wrenches_from_arrays, wrenches_to_arrays
 
 PLANAR = ('force.x', 'force.y', 'torque.z')
 
@@ -45,6 +45,14 @@ def planar_wrenches_from_arrays(stamps: Any, frame_id: str, s: Any) -> list[Wren
     s = as_matrix(s, stamps.shape[0], 3, 'planar wrench', PLANAR)
     force, torque = planar_to_xyz(s)
     return wrenches_from_arrays(stamps, frame_id, force, torque)
+
+
+def planar_wrench_blobs(stamps: Any, frame_id: str, s: Any) -> list[bytes]:
+    """The messages of :func:`planar_wrenches_from_arrays`, serialised (``wrench_blobs``)."""
+    stamps = np.asarray(stamps)
+    s = as_matrix(s, stamps.shape[0], 3, 'planar wrench', PLANAR)
+    force, torque = planar_to_xyz(s)
+    return wrench_blobs(stamps, frame_id, force, torque)
 
 
 def from_planar_wrench(msg: WrenchStamped, frame_id: str | None = None,

@@ -13,6 +13,7 @@ from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
 import numpy as np
 from std_msgs.msg import Header
 
+from .cdr_arrays import encode_wrenches
 from .series import WrenchSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite
@@ -76,6 +77,18 @@ def wrenches_from_arrays(stamps: Any, frame_id: str, force: Any,
             force=Vector3(x=r[0], y=r[1], z=r[2]), torque=Vector3(x=r[3], y=r[4], z=r[5])))
         for stamp, r in zip(times_from_ns(stamp_ns), rows)
     ]
+
+
+def wrench_blobs(stamps: Any, frame_id: str, force: Any, torque: Any = None,
+                 allow_nan: bool = False) -> list[bytes]:
+    """The messages of :func:`wrenches_from_arrays` (same arguments, same checks),
+    serialised (CDR, padding zero) without building message objects."""
+    stamp_ns = stamps_to_ns(stamps)
+    n = stamp_ns.shape[0]
+    f = as_matrix(force, n, 3, 'force', AXES, allow_nan=allow_nan)
+    t = (np.zeros((n, 3)) if torque is None
+         else as_matrix(torque, n, 3, 'torque', AXES, allow_nan=allow_nan))
+    return encode_wrenches(stamp_ns, f, t, frame_id)
 
 
 def wrenches_to_arrays(msgs: Sequence[WrenchStamped], frame_id: str | None = None,

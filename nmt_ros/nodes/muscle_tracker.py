@@ -27,7 +27,7 @@ import time
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
+from msg_adapters.joint_state import from_joint_state, joint_state_blobs
 from nmt_ros.model.parameters import JOINTS, MUSCLES
 from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample
@@ -42,7 +42,7 @@ from nmt_ros.topics import (
     SKELETAL_JOINT_TORQUES,
 )
 from nmt_ros.tracking.stage2 import NeuromuscularTracker, load_stage2_settings
-from nmt_ros.tracking.streaming import Stage2Output, Stage2Stream
+from nmt_ros.tracking.streaming import Decimator, Stage2Output, Stage2Stream
 
 NODE_NAME = 'muscle_tracker'
 
@@ -66,12 +66,17 @@ class MuscleTrackerNode(TrackerNode):
                                '[Hz]', low=1.0, high=100000.0)
         self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
                               "by nmt import-lab; '' = the shipped jumper)")
+        self.side_rate_hz = p('side_rate_hz', 0.0, 'rate of the activations and excitations '
+                              '[Hz] (the forces keep every input instant); 0 = every instant '
+                              '(publishing costs ~0.1 ms per message)', low=0.0, high=100000.0)
+        self.side_decimator = Decimator(self.side_rate_hz) if self.side_rate_hz else None
         stride = self.window_stride_s if self.window_stride_s > 0 else None
         self.status.settings = {'window_length_s': self.window_length_s,
                                 'window_stride_s': self.window_stride_s,
                                 'saturation': self.saturation,
                                 'input_rate_hz': self.input_rate_hz,
-                                'subject_file': self.subject_file}
+                                'subject_file': self.subject_file,
+                                'side_rate_hz': self.side_rate_hz}
 
         self.model = load_subject_model(self.subject_file or None)
         self.tracker = NeuromuscularTracker(
@@ -105,6 +110,7 @@ class MuscleTrackerNode(TrackerNode):
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
         self.received_at = {}
+        self.side_decimator = Decimator(self.side_rate_hz) if self.side_rate_hz else None
 
     def process(self, final: bool = False) -> None:
         if not self.tracking:
@@ -131,11 +137,19 @@ class MuscleTrackerNode(TrackerNode):
             return
         stamps = out.stamp_ns
         self.publish_batches(stamps, {
-            MUSCLE_FORCES: joint_states_from_arrays(stamps, MUSCLES, position=out.l_mt,
-                                                   velocity=out.v_mt, effort=out.f),
-            MUSCLE_ACTIVATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.a),
-            MUSCLE_EXCITATIONS: joint_states_from_arrays(stamps, MUSCLES, position=out.u),
-        })
+            MUSCLE_FORCES: joint_state_blobs(stamps, MUSCLES, position=out.l_mt,
+                                                   velocity=out.v_mt, effort=out.f)})
+        # activations and excitations: every instant, or the first of each side-rate period
+        keep = (self.side_decimator.keep(out.t) if self.side_decimator is not None
+                else np.ones(out.t.size, dtype=bool))
+        if keep.any():
+            newest = self.newest_output_ns
+            side = stamps[keep]
+            self.publish_batches(side, {
+                MUSCLE_ACTIVATIONS: joint_state_blobs(side, MUSCLES, position=out.a[keep]),
+                MUSCLE_EXCITATIONS: joint_state_blobs(side, MUSCLES, position=out.u[keep]),
+            })
+            self.newest_output_ns = max(newest, self.newest_output_ns)
         now = time.monotonic()
         for s in stamps.tolist():
             received = self.received_at.pop(s, None)

@@ -40,8 +40,8 @@ from geometry_msgs.msg import WrenchStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from msg_adapters.joint_state import from_joint_state, joint_states_from_arrays
-from msg_adapters.planar import PLANAR, from_planar_wrench, planar_wrenches_from_arrays
+from msg_adapters.joint_state import from_joint_state, joint_state_blobs
+from msg_adapters.planar import PLANAR, from_planar_wrench, planar_wrench_blobs
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample, TrialClock
@@ -340,12 +340,12 @@ class SkeletalTrackerNode(TrackerNode):
         if t.size == 0:
             return
         stamps = self.clock.stamps(t)
-        make = (lambda: joint_states_from_arrays(stamps, JOINTS, position=theta,
+        make = (lambda: joint_state_blobs(stamps, JOINTS, position=theta,
                                                  velocity=theta_dot, effort=tau),
-                lambda: joint_states_from_arrays(stamps, SEGMENTS, position=q[:, :4],
+                lambda: joint_state_blobs(stamps, SEGMENTS, position=q[:, :4],
                                                  velocity=qd[:, :4]),
-                lambda: joint_states_from_arrays(stamps, Q_NAMES, position=q, velocity=qd),
-                lambda: planar_wrenches_from_arrays(stamps, WRENCH_FRAME, s))
+                lambda: joint_state_blobs(stamps, Q_NAMES, position=q, velocity=qd),
+                lambda: planar_wrench_blobs(stamps, WRENCH_FRAME, s))
         names = dict(zip(SKELETAL_TOPICS, make))
         names.update({SKELETAL_LOW_LATENCY[k]: v for k, v in zip(SKELETAL_TOPICS, make)})
         self.publish_batches(stamps, {topic: names[topic]() for topic in topics})

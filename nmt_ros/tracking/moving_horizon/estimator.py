@@ -129,6 +129,7 @@ class MovingHorizonEstimator:
         self.state = 'waiting'                 # waiting | tracking | finished
         self.updates = 0
         self.restarts = 0
+        self.stride = 1                        # update periods between updates (_stride)
 
     # ------------------------------------------------------------------ inputs
     def add_angles(self, t: float, theta: np.ndarray) -> None:
@@ -189,6 +190,26 @@ class MovingHorizonEstimator:
         self.restarts += 1
         self.next_update = t_new
 
+    def _stride(self, t_u: float) -> int:
+        """Update periods to the next update: 2 while the data wait more than
+        ``slow_backlog_s`` beyond this update (a live consumer short of CPU: half the updates,
+        every instant still estimated, instead of falling behind to a skip), else 1. The
+        updates stay on the grid of ``update_rate_hz``; fed sample by sample (offline, or a
+        consumer that keeps up) the stride is always 1."""
+        st = self.settings
+        waiting = min(self.newest) - t_u
+        if (st.slow_backlog_s <= 0 or waiting <= st.slow_backlog_s
+                or st.window_s < st.lag_s + 2 * self.period - 1e-12):
+            self.stride = 1
+            return 1
+        if self.stride == 1:
+            self.events.append(EstimatorEvent(
+                'warn', t_u, f'{waiting:.2f} s of data waiting (more than slow_backlog_s = '
+                f'{st.slow_backlog_s:g} s): updating every {2 * self.period * 1e3:.0f} ms '
+                'until caught up', {'waiting_s': float(waiting)}))
+        self.stride = 2
+        return 2
+
     def finish(self) -> list[EstimateBlock]:
         """End of the data: update to the last sample and emit everything left."""
         blocks: list[EstimateBlock] = []
@@ -238,7 +259,7 @@ class MovingHorizonEstimator:
         self.history_angles.add(*angles, keep_after=t_u - st.start_window_s - 1e-9)
         self.history_wrench.add(*wrench, keep_after=t_u - st.start_window_s - 1e-9)
         self.updated_until = t_u
-        self.next_update = t_u + self.period
+        self.next_update = t_u + self.period * self._stride(t_u)
         self.updates += 1
         if self.window is None:
             if not self._start(t_u):

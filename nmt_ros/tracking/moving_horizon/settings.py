@@ -108,6 +108,8 @@ class MovingHorizonSettings:
                                        # blocks a live node, so it is kept short)
     start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
     # --- health (loss of control)
+    slow_backlog_s: float = 0.15       # data waiting this long: update every other
+                                       # period until caught up (live only; 0 = never)
     max_backlog_s: float = 0.5         # data waiting this long: skip to the newest (live
                                        # only: a consumer that fell behind; 0 = never)
     max_cost_per_row: float = 25.0     # mean normalised residual^2 of the newest data
