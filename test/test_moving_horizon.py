@@ -362,3 +362,33 @@ def test_the_shipped_routine_is_tracked_against_its_truth(routine, model, span, 
     for phase, limit in bounds.items():
         err = np.array(list(scores[phase]['torque_rms_pct_peak'].values()))
         assert (err < np.array(limit)).all(), (phase, err)
+
+
+def test_takeoffs_and_jump_heights_of_every_jump(routine, model):
+    """``metrics.takeoffs`` finds each flight's lift-off (the interpolated downward crossing,
+    flickers shorter than a flight ignored) and ``jump_heights`` is the ballistic apex: on a
+    synthetic force trace the crossings are known; on the routine's truth the heights equal
+    the apex the truth's own centre of mass reaches in each flight."""
+    from nmt_ros.study.metrics import jump_heights, takeoffs
+
+    t = np.arange(0, 3, 0.001)
+    fy = np.where((t > 1.0) & (t < 1.4), 0.0, 700.0)       # one flight of 0.4 s
+    fy[(t > 2.0) & (t < 2.003)] = 0.0                        # a 3 ms flicker
+    fy[t > 2.95] = 0.0                       # the record ends 50 ms into the air
+    lo = takeoffs(t, fy, 350.0)
+    assert lo.size == 1 and abs(lo[0] - 1.0005) < 1e-9, lo
+    assert np.allclose(takeoffs(t, fy, 350.0, min_flight_s=0.04), [1.0005, 2.9505])
+    _, truth = routine
+    lo = takeoffs(truth.t, truth.s[:, 1], 1.0)
+    assert lo.size >= 4
+    heights = jump_heights(model, truth.t, truth.q, truth.qd, lo)
+    com_y = np.array([model.call(model.com, q)[0][1] for q in truth.q[::9]]).ravel()
+    t9 = truth.t[::9]
+    for t_lo, h in zip(lo, heights):
+        flight = (t9 > t_lo) & (t9 < t_lo + 1.0)
+        land = np.flatnonzero(flight & (np.interp(t9, truth.t, truth.s[:, 1]) > 1.0))
+        end = t9[land[0]] if land.size else t_lo + 1.0
+        apex = com_y[(t9 > t_lo) & (t9 < end)].max()
+        # within 1 cm (heights 9-26 cm): the 1 N crossing is not the last contact to the
+        # sample, and the state there is interpolated; a wrong lift-off is decimetres off
+        assert abs(apex - model.standing_com_height - h) < 0.01, (t_lo, h, apex)

@@ -41,6 +41,31 @@ def jump_from(model: JumperModel, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
     return {'jump_height_m': h['height_m'], 'liftoff_s': float(liftoff_s)}
 
 
+def takeoffs(t: np.ndarray, fy: np.ndarray, threshold_n: float,
+             min_flight_s: float = 0.1) -> np.ndarray:
+    """Lift-off instants [s] of every jump in a long record: the vertical force fy [N] at
+    times t [s] falls below ``threshold_n`` (interpolated crossing) after being above it, and
+    stays below for at least ``min_flight_s`` (a flight, not a flicker of the force)."""
+    t, fy = np.asarray(t, dtype=float), np.asarray(fy, dtype=float)
+    up = fy >= threshold_n
+    out = []
+    for i in np.flatnonzero(up[:-1] & ~up[1:]):
+        back = np.flatnonzero(up[i + 1:])
+        end = t[i + 1 + back[0]] if back.size else t[-1]
+        if end - t[i + 1] < min_flight_s:
+            continue
+        w = (fy[i] - threshold_n) / (fy[i] - fy[i + 1])
+        out.append(t[i] + w * (t[i + 1] - t[i]))
+    return np.array(out)
+
+
+def jump_heights(model: JumperModel, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                 liftoffs: np.ndarray) -> np.ndarray:
+    """Jump height [m] (``JumperModel.jump_height``) from the state at each lift-off [s]."""
+    return np.array([jump_from(model, t, q, qd, float(lo))['jump_height_m']
+                     for lo in np.atleast_1d(liftoffs)])
+
+
 def compute_metrics(model: JumperModel, run: NMTRun, truth: Truth,
                     po: dict | None = None) -> dict:
     """metrics.json content for one NMT run on a synthetic trial."""
