@@ -301,3 +301,44 @@ def encode_wrenches(stamp_ns: np.ndarray, force: np.ndarray, torque: np.ndarray,
     values = np.hstack([np.asarray(force, dtype=float).reshape(-1, 3),
                         np.asarray(torque, dtype=float).reshape(-1, 3)])
     return _fill(template, stamp_ns, [(offset, values)])
+
+
+# ---------------------------------------------------------------------------- message views
+class _Fields:
+    """Attribute access to decoded fields (the shape of the ROS message, not its class)."""
+
+    def __init__(self, **fields: object) -> None:
+        self.__dict__.update(fields)
+
+
+def _header_view(cur: _Cursor) -> _Fields:
+    sec, nanosec = cur.stamp()
+    return _Fields(stamp=_Fields(sec=sec, nanosec=nanosec), frame_id=cur.string())
+
+
+def joint_state_view(blob: bytes) -> _Fields:
+    """A CDR ``sensor_msgs/msg/JointState`` as an object with the message's fields (header
+    .stamp .sec/.nanosec, .frame_id; name list; position, velocity, effort float64 arrays),
+    for the readers that take a message (``joint_state.from_joint_state``) without building
+    rclpy's message object. ValueError for a truncated or malformed message."""
+    cur = _Cursor(blob)
+    header = _header_view(cur)
+    names = [cur.string() for _ in range(cur.count())]
+    fields = {f: cur.float64s(cur.count())[1].astype(np.float64)
+              for f in ('position', 'velocity', 'effort')}
+    return _Fields(header=header, name=names, **fields)
+
+
+def wrench_view(blob: bytes) -> _Fields:
+    """A CDR ``geometry_msgs/msg/WrenchStamped`` as an object with the message's fields
+    (header; wrench.force / wrench.torque .x .y .z) for ``wrench.from_wrench_stamped``."""
+    cur = _Cursor(blob)
+    header = _header_view(cur)
+    v = cur.float64s(6)[1].astype(np.float64).tolist()
+    return _Fields(header=header, wrench=_Fields(force=_Fields(x=v[0], y=v[1], z=v[2]),
+                                                 torque=_Fields(x=v[3], y=v[4], z=v[5])))
+
+
+#: Message views by ROS type name (``message_view``).
+VIEWS = {'sensor_msgs/msg/JointState': joint_state_view,
+         'geometry_msgs/msg/WrenchStamped': wrench_view}

@@ -66,8 +66,10 @@ def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
     record, logs = tmp_path / 'rec', tmp_path / 'logs'
     proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)  # ~5 s replay
     try:
-        assert wait_for_text(logs / 'recorder.log', 'recording /nmt/muscle/forces', 60.0)
-        time.sleep(2.0)   # well into the replay
+        # the replay has begun (its start waits for discovery, seconds on a loaded machine)
+        assert wait_for_text(logs / 'recorder.log', 'first message on /force_plate/wrench',
+                             120.0)
+        time.sleep(1.0)   # well into the replay (269 force-plate samples in ~5 s)
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:

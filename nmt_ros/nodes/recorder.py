@@ -102,6 +102,7 @@ class RecorderNode(NmtNode):
         self.status.settings = {'output': self.output, 'compression': self.compression}
         self.last_message = time.monotonic()
         self.largest_take = 0
+        self.heard: set[str] = set()         # topics whose first message arrived
         self.writer: BackgroundBagWriter | None = None
         self.inputs: PolledSubscriptions | None = None
         try:
@@ -162,6 +163,9 @@ class RecorderNode(NmtNode):
         batch = []
         for topic, messages in taken.items():
             self.status.receive(topic, len(messages))
+            if topic not in self.heard:          # once per topic: the data began to flow
+                self.heard.add(topic)
+                self.get_logger().info(f'first message on {topic}')
             batch.extend((topic, data, info['received_timestamp'], info['source_timestamp'])
                          for data, info in messages)
         if self.sim_time:
