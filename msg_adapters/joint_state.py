@@ -100,13 +100,10 @@ def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
                             **{f: np.array(v) for f, v in fields.items()})
 
 
-def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = None,
-                             velocity: Any = None, effort: Any = None, *,
-                             frame_id: str = '', allow_nan: bool = False) -> list[JointState]:
-    """``n`` stamps and ``[n, k]`` arrays -> ``n`` JointState messages (validated at once).
-
-    ``allow_nan``: provided values may be NaN (a measurement that is missing, e.g. an
-    occluded segment in a mocap stream); inf is refused all the same."""
+def _checked_blocks(stamps: Any, names: Sequence[str], position: Any, velocity: Any,
+                    effort: Any, allow_nan: bool,
+                    ) -> tuple[tuple[str, ...], np.ndarray, dict[str, np.ndarray]]:
+    """(names, stamps [n] ns, {field: [n, k]}) checked; a field not given is NOT_PROVIDED."""
     names = check_names(names)
     stamp_ns = stamps_to_ns(stamps)
     n, k = stamp_ns.shape[0], len(names)
@@ -116,8 +113,20 @@ def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = 
     blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None
                   else as_matrix(v, n, k, f, names, allow_nan=allow_nan))
               for f, v in given.items()}
+    return names, stamp_ns, blocks
+
+
+def joint_states_from_arrays(stamps: Any, names: Sequence[str], position: Any = None,
+                             velocity: Any = None, effort: Any = None, *,
+                             frame_id: str = '', allow_nan: bool = False) -> list[JointState]:
+    """``n`` stamps and ``[n, k]`` arrays -> ``n`` JointState messages (validated at once).
+
+    ``allow_nan``: provided values may be NaN (a measurement that is missing, e.g. an
+    occluded segment in a mocap stream); inf is refused all the same."""
+    names, stamp_ns, blocks = _checked_blocks(stamps, names, position, velocity, effort,
+                                              allow_nan)
     raw = {f: np.ascontiguousarray(b).tobytes() for f, b in blocks.items()}
-    row = 8 * k
+    row = 8 * len(names)
     name_list = list(names)
     out = []
     for i, stamp in enumerate(times_from_ns(stamp_ns)):
@@ -136,15 +145,8 @@ def joint_state_blobs(stamps: Any, names: Sequence[str], position: Any = None,
     """The messages of :func:`joint_states_from_arrays` (same arguments, same checks),
     serialised (CDR, padding zero) without building message objects: what a node publishes
     at high rates (``Publisher.publish`` takes bytes)."""
-    names = check_names(names)
-    stamp_ns = stamps_to_ns(stamps)
-    n, k = stamp_ns.shape[0], len(names)
-    given = {'position': position, 'velocity': velocity, 'effort': effort}
-    if all(v is None for v in given.values()):
-        raise ValueError('JointState needs at least one of position, velocity, effort')
-    blocks = {f: (np.full((n, k), NOT_PROVIDED) if v is None
-                  else as_matrix(v, n, k, f, names, allow_nan=allow_nan))
-              for f, v in given.items()}
+    names, stamp_ns, blocks = _checked_blocks(stamps, names, position, velocity, effort,
+                                              allow_nan)
     return encode_joint_states(stamp_ns, names, blocks['position'], blocks['velocity'],
                                blocks['effort'], frame_id)
 

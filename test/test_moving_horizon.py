@@ -255,12 +255,9 @@ def test_occlusions_nan_samples_and_spikes_are_bridged(stance, model):
     assert (err < np.array([6.0, 9.0, 9.0])).all(), err
 
 
-def test_a_consumer_that_fell_behind_skips_to_the_newest_data(stance, model):
-    """Data handed over in one 0.8 s lump (a live node that was starved) exceed
-    max_backlog_s: the estimator says so, re-initialises at the newest data instead of
-    working through the backlog, and then tracks on; fed sample by sample it never skips."""
-    held, obs, run = stance
-    assert not [e for e in run.events if 'fell behind' in e.message]
+def _fed_in_lumps(model, obs, poll_now) -> tuple[MovingHorizonEstimator, list]:
+    """An estimator fed the samples in time order, polled after a sample only when
+    ``poll_now(t)`` says so (the lumps a starved live node hands over), then finished."""
     est = MovingHorizonEstimator(model)
     blocks = []
     order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
@@ -268,9 +265,19 @@ def test_a_consumer_that_fell_behind_skips_to_the_newest_data(stance, model):
     for t, kind, i in order:
         (est.add_angles if kind == 0 else est.add_wrench)(
             t, obs.angles[i] if kind == 0 else obs.wrench[i])
-        if t < 0.15 or t > 0.95:          # in time, then a lump from 0.15 to 0.95 s
+        if poll_now(t):
             blocks += est.poll()
-    blocks += est.finish()
+    return est, blocks + est.finish()
+
+
+def test_a_consumer_that_fell_behind_skips_to_the_newest_data(stance, model):
+    """Data handed over in one 0.8 s lump (a live node that was starved) exceed
+    max_backlog_s: the estimator says so, re-initialises at the newest data instead of
+    working through the backlog, and then tracks on; fed sample by sample it never skips."""
+    held, obs, run = stance
+    assert not [e for e in run.events if 'fell behind' in e.message]
+    # in time, then a lump from 0.15 to 0.95 s
+    est, blocks = _fed_in_lumps(model, obs, lambda t: t < 0.15 or t > 0.95)
     skips = [e for e in est.events if 'fell behind' in e.message]
     assert len(skips) == 1 and skips[0].values['behind_s'] > 0.5, skips
     refined = [b for b in blocks if b.kind == 'refined']
@@ -300,18 +307,14 @@ def test_a_consumer_short_of_cpu_updates_less_often_and_keeps_every_instant(stan
     updates; fed sample by sample the stride is never taken."""
     held, obs, run = stance
     assert not [e for e in run.events if 'until caught up' in e.message]
-    est = MovingHorizonEstimator(model)
-    blocks = []
-    order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
-                   + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
-    lump = -1
-    for t, kind, i in order:
-        (est.add_angles if kind == 0 else est.add_wrench)(
-            t, obs.angles[i] if kind == 0 else obs.wrench[i])
-        if t < 0.15 or int((t - 0.15) / 0.3) != lump:     # then a poll every 0.3 s
-            lump = int((t - 0.15) / 0.3) if t >= 0.15 else -1
-            blocks += est.poll()
-    blocks += est.finish()
+    lump = [-1]
+
+    def poll_now(t: float) -> bool:                       # in time, then every 0.3 s
+        k = int((t - 0.15) / 0.3) if t >= 0.15 else -1
+        due, lump[0] = t < 0.15 or k != lump[0], k
+        return due
+
+    est, blocks = _fed_in_lumps(model, obs, poll_now)
     assert not [e for e in est.events if 'fell behind' in e.message] and est.restarts == 0
     strides = [e for e in est.events if 'until caught up' in e.message]
     assert strides and all(0.15 < e.values['waiting_s'] < 0.5 for e in strides), strides
