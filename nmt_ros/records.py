@@ -50,6 +50,14 @@ class Truth:
         """Samples of the ground-contact phase (t <= lift-off)."""
         return self.t <= self.liftoff_s
 
+    def between(self, t0: float, t1: float) -> Truth:
+        """The samples with t0 <= t <= t1 [s] (e.g. the part of a record that was replayed);
+        lift-off, anchors and info unchanged."""
+        keep = (self.t >= t0) & (self.t <= t1)
+        arrays = {f: getattr(self, f)[keep] for f in
+                  ('t', 'q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's', 'point_forces')}
+        return Truth(**arrays, x0=self.x0, liftoff_s=self.liftoff_s, info=self.info)
+
 
 @dataclass
 class Observations:

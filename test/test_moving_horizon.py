@@ -255,10 +255,12 @@ def test_occlusions_nan_samples_and_spikes_are_bridged(stance, model):
     assert (err < np.array([6.0, 9.0, 9.0])).all(), err
 
 
-def _fed_in_lumps(model, obs, poll_now) -> tuple[MovingHorizonEstimator, list]:
+def _fed_in_lumps(model, obs, poll_now,
+                  settings: MovingHorizonSettings | None = None,
+                  ) -> tuple[MovingHorizonEstimator, list]:
     """An estimator fed the samples in time order, polled after a sample only when
     ``poll_now(t)`` says so (the lumps a starved live node hands over), then finished."""
-    est = MovingHorizonEstimator(model)
+    est = MovingHorizonEstimator(model, settings)
     blocks = []
     order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
                    + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
@@ -272,12 +274,14 @@ def _fed_in_lumps(model, obs, poll_now) -> tuple[MovingHorizonEstimator, list]:
 
 def test_a_consumer_that_fell_behind_skips_to_the_newest_data(stance, model):
     """Data handed over in one 0.8 s lump (a live node that was starved) exceed
-    max_backlog_s: the estimator says so, re-initialises at the newest data instead of
-    working through the backlog, and then tracks on; fed sample by sample it never skips."""
+    max_backlog_s (here 0.5 s): the estimator says so, re-initialises at the newest data
+    instead of working through the backlog, and then tracks on; fed sample by sample it never
+    skips."""
     held, obs, run = stance
     assert not [e for e in run.events if 'fell behind' in e.message]
     # in time, then a lump from 0.15 to 0.95 s
-    est, blocks = _fed_in_lumps(model, obs, lambda t: t < 0.15 or t > 0.95)
+    est, blocks = _fed_in_lumps(model, obs, lambda t: t < 0.15 or t > 0.95,
+                                MovingHorizonSettings().with_(max_backlog_s=0.5))
     skips = [e for e in est.events if 'fell behind' in e.message]
     assert len(skips) == 1 and skips[0].values['behind_s'] > 0.5, skips
     refined = [b for b in blocks if b.kind == 'refined']
@@ -327,6 +331,31 @@ def test_a_consumer_short_of_cpu_updates_less_often_and_keeps_every_instant(stan
     after = t >= 0.2
     err = np.abs(tau[after] - held.tau[0]).mean(0)
     assert (err < np.array([4.0, 6.0, 6.0])).all(), err
+
+
+def test_a_stream_delivered_late_within_max_wait_changes_nothing(stance, model):
+    """The force plate delivered 0.2 s of data ahead of the mocap (a live node receiving the
+    two topics with a skew, e.g. a replay bursting after a stall; less than max_wait_s):
+    nothing is rejected as too late and the estimates equal those of in-order feeding."""
+    held, obs, run = stance
+    est = MovingHorizonEstimator(model)
+    assert est.max_wait_s > 0.2
+    order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
+                   + [(t - 0.2, 1, i) for i, t in enumerate(obs.t_wrench)])
+    blocks = []
+    for _, kind, i in order:
+        if kind == 0:
+            est.add_angles(obs.t_angles[i], obs.angles[i])
+        else:
+            est.add_wrench(obs.t_wrench[i], obs.wrench[i])
+        blocks += est.poll()
+    blocks += est.finish()
+    refined = [b for b in blocks if b.kind == 'refined']
+    t = np.concatenate([b.t for b in refined])
+    tau = np.concatenate([b.tau for b in refined])
+    assert est.restarts == run.restarts == 0
+    assert np.array_equal(t, run.refined.t)
+    np.testing.assert_allclose(tau, run.refined.tau, rtol=0, atol=1e-9)
 
 
 @pytest.fixture(scope='module')

@@ -124,6 +124,25 @@ def test_trial_book_times_out_and_ignores_stale_announcements():
     assert book.finish() == ({'/out': 7}, {'/out': 7})
 
 
+def test_trial_book_ends_the_last_trial_of_a_stream_split_by_gaps():
+    """A gap ends a trial inside one producer stream (more follows): the producer's end of
+    stream, counted from its first message, still ends the trial that runs at the end."""
+    book = TrialBook(['/a'])
+    book.start()
+    for stamp in (100, 101, 102):
+        book.saw('/a', stamp)
+    book.finish(more_follows=True)           # a gap: the next trial starts at once
+    book.start()
+    book.saw('/a', 900)
+    ann = {k: str(v) for k, v in end_of_stream_values({'/a': 5}, {'/a': 100}).items()}
+    assert book.announcement(ann, now=0.0)
+    assert book.verdict(0.1, timeout_s=1.0) is None      # 4 of 5 seen
+    book.saw('/a', 901)
+    assert 'every message received' in book.verdict(0.2, timeout_s=1.0)
+    book.finish()
+    assert book.seen == {} and book.first_seen == {}
+
+
 def test_end_of_stream_needs_an_announcement():
     end = EndOfStream(['/a'])
     assert not end.complete({'/a': 10}, {'/a': 1})

@@ -370,3 +370,36 @@ def test_a_signal_never_leaves_a_half_written_chunk(tmp_bag, signum):
         force = rosbags_force_x(path)
         assert force.size == info.message_count >= 2000
         np.testing.assert_array_equal(force, np.arange(force.size))
+
+
+def test_latency_is_measured_between_receive_times_or_publish_times():
+    """The report's latency: the estimate's time minus the same-stamped observation's, on the
+    recorder's receive clock (default) or the publishers' clock; stamps without an
+    observation are not scored."""
+    from nmt_ros.study.recording_evaluation import TopicTimes, latency_ms
+
+    stamps = np.array([10, 20, 30], dtype=np.int64)
+    obs = TopicTimes(stamps, publish_ns=np.array([100, 200, 300]) * 1_000_000,
+                     log_ns=np.array([101, 201, 301]) * 1_000_000)
+    est = TopicTimes(np.array([30, 10, 25], dtype=np.int64),
+                     publish_ns=np.array([340, 150, 999]) * 1_000_000,
+                     log_ns=np.array([346, 155, 999]) * 1_000_000)
+    received = latency_ms(est, obs)
+    published = latency_ms(est, obs, clock='publish')
+    assert received['n'] == published['n'] == 2
+    assert (received['min_ms'], received['max_ms']) == (45.0, 54.0)
+    assert (published['min_ms'], published['max_ms']) == (40.0, 50.0)
+    with pytest.raises(ValueError, match='clock'):
+        latency_ms(est, obs, clock='wall')
+
+
+def test_truth_between_keeps_the_replayed_span():
+    """A demo replaying the first seconds of a long record is scored on those seconds."""
+    from nmt_ros.io.trial_bag import read_truth
+
+    truth = read_truth(BAG)
+    part = truth.between(0.05, 0.1)
+    assert part.t.min() >= 0.05 and part.t.max() <= 0.1
+    assert part.t.size == ((truth.t >= 0.05) & (truth.t <= 0.1)).sum() > 0
+    np.testing.assert_array_equal(part.tau, truth.tau[(truth.t >= 0.05) & (truth.t <= 0.1)])
+    assert part.f.shape[1] == truth.f.shape[1] and part.liftoff_s == truth.liftoff_s

@@ -145,11 +145,17 @@ class TrialBook:
                     f'{timeout_s:g} s: {missing}')
         return None
 
-    def finish(self) -> tuple[dict[str, int], dict[str, int]]:
-        """End the trial: (published counts, first stamps) for the announcement."""
+    def finish(self, more_follows: bool = False) -> tuple[dict[str, int], dict[str, int]]:
+        """End the trial: (published counts, first stamps) for the announcement.
+
+        ``more_follows``: the trial ends inside one producer stream (a gap in the input) and
+        the next starts at once; the inputs seen and the announcements received stay, so that
+        the producers' end of stream (counted from their first message) still ends the last
+        trial instead of an idle timeout."""
         out = (dict(self.published), dict(self.first_published))
         self.active = False
-        self.seen = {}
-        self.first_seen = {}
-        self.end.reset()
+        if not more_follows:
+            self.seen = {}
+            self.first_seen = {}
+            self.end.reset()
         return out

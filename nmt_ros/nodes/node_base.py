@@ -342,8 +342,7 @@ class TrackerNode(NmtNode):
         if result.restart:
             self.status.event(WARN, result.restart)
             self._finish(result.restart, more_follows=True)
-            self._start_trial(stamp_ns)
-            self.book.saw(topic, stamp_ns)
+            self._start_trial(stamp_ns)      # this message stays counted (same stream)
             result = gate.offer(stamp_ns, values)
         if result.gap:
             self.status.interpolated += len(result.samples) - 1
@@ -389,7 +388,7 @@ class TrackerNode(NmtNode):
         self.tracking = False
         self.status.state = self.end_state()
         self.status.detail = f'trial {self.book.trial} finished: {why}'
-        counts, firsts = self.book.finish()
+        counts, firsts = self.book.finish(more_follows)
         self.announce_end(counts, firsts, trial=self.book.trial, reason=why)
         if self.exit_when_finished and not more_follows:
             self.done = True

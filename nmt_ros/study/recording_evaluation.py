@@ -5,12 +5,14 @@ From a bag recorded by the ``recorder`` node while the graph processed a trial:
 
 - counts: per topic, messages published (the producers' final ``/nmt/status`` records, the
   observation publisher's for the observations) against messages recorded;
-- latency: for each estimate message, its publication time minus the publication time of the
-  force-plate sample with the same header stamp (both are the publishers' source timestamps,
-  stored as the bag's publish time): the delay from an observation's publication to the
-  estimate for that instant, look-ahead and windows included;
+- latency: for each estimate message, the time the recorder received it minus the time it
+  received the force-plate sample with the same header stamp (the bag's log times, one
+  clock): the delay from an observation's arrival to the estimate for that instant,
+  look-ahead and windows included (``latency_ms(..., clock='publish')``: the publishers'
+  source timestamps instead);
 - CPU: each node's share of one core while active (its status ``cpu_share``);
-- accuracy against the truth topics of the source bag (contact phase: t <= lift-off), the jump
+- accuracy against the truth topics of the source bag over the replayed span (contact:
+  the truth's feet carry weight; phase by phase), the jump
   height of the tracked motion, and the agreement with the batch trackers run on the same
   observations with the graph's settings (Stage 1 ``track_stage1``; Stage 2 windowed with the same
   window and stride, fed the batch Stage-1 output).
@@ -54,8 +56,14 @@ def topic_times(bag: str | os.PathLike, topic: str) -> TopicTimes:
                       np.asarray(log, dtype=np.int64))
 
 
-def latency_ms(estimate: TopicTimes, observation: TopicTimes) -> dict[str, float]:
-    """Publication delay [ms] of each estimate after the observation with the same stamp."""
+def latency_ms(estimate: TopicTimes, observation: TopicTimes,
+               clock: str = 'receive') -> dict[str, float]:
+    """Delay [ms] of each estimate after the observation with the same stamp: between the
+    recorder's receive times of the two (``clock`` 'receive', one clock, what a consumer of
+    both topics sees) or their publishers' source times ('publish')."""
+    if clock not in ('receive', 'publish'):
+        raise ValueError(f"clock must be 'receive' or 'publish', got {clock!r}")
+    field = 'log_ns' if clock == 'receive' else 'publish_ns'
     order = np.argsort(observation.stamp_ns, kind='stable')
     obs_stamps = observation.stamp_ns[order]
     idx = np.searchsorted(obs_stamps, estimate.stamp_ns)
@@ -65,7 +73,7 @@ def latency_ms(estimate: TopicTimes, observation: TopicTimes) -> dict[str, float
     if not match or not ok.any():
         return {'n': 0, 'p50_ms': math.nan, 'p99_ms': math.nan, 'max_ms': math.nan,
                 'min_ms': math.nan}
-    delay = (estimate.publish_ns[ok] - observation.publish_ns[order][idx[ok]]) / 1e6
+    delay = (getattr(estimate, field)[ok] - getattr(observation, field)[order][idx[ok]]) / 1e6
     return {'n': int(ok.sum()), 'p50_ms': float(np.percentile(delay, 50)),
             'p99_ms': float(np.percentile(delay, 99)), 'max_ms': float(delay.max()),
             'min_ms': float(delay.min())}
@@ -293,12 +301,19 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
         truth = read_truth(source)
         actual = jump_from(model, truth.t, truth.q, truth.qd, truth.liftoff_s)
         summary['actual'] = {k: round(v, 4) for k, v in actual.items()}
+        if obs.stamp_ns.size:
+            # scored over the part of the record that was replayed (nmt demo --duration)
+            truth = truth.between((obs.stamp_ns.min() - epoch) * 1e-9 - 1e-6,
+                                  (obs.stamp_ns.max() - epoch) * 1e-9 + 1e-6)
         if tracked_jumps is not None:
             summary['jumps'] = _jumps(model, truth, *tracked_jumps)
-        contact = t <= truth.liftoff_s
         idx = np.clip(np.rint(np.interp(t, truth.t, np.arange(truth.t.size))).astype(int), 0,
                       truth.t.size - 1)
-        peaks = np.abs(truth.tau[truth.t <= truth.liftoff_s]).max(axis=0)
+        # contact: the truth's feet carry weight (every stance of a long record; the paper's
+        # clip: up to its lift-off)
+        on_ground = truth.s[:, 1] > SKTSettings().liftoff_force_bw * model.p.body_weight
+        contact = on_ground[idx]
+        peaks = np.abs(truth.tau[on_ground]).max(axis=0)
         err = _rms(tau[contact] - truth.tau[idx[contact]])
         summary['vs_truth'] = {'torque_rms_nm': _named(JOINTS, err, 2),
                                'torque_rms_pct_peak': _named(JOINTS, 100 * err / peaks, 2)}
@@ -308,7 +323,7 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
             tf = (forces[0] - epoch) * 1e-9
             fidx = np.clip(np.rint(np.interp(tf, truth.t, np.arange(truth.t.size))).astype(int),
                            0, truth.t.size - 1)
-            fc = tf <= truth.liftoff_s
+            fc = on_ground[fidx]
             ferr = _rms(forces[1][fc] - truth.f[fidx[fc]])
             summary['vs_truth']['muscle_force_rms_n'] = _named(MUSCLES, ferr, 1)
             summary['vs_truth']['muscle_force_rms_pct_f0'] = _named(

@@ -86,7 +86,12 @@ class MovingHorizonEstimator:
     """Streaming Stage 1 (see the module docstring). One object per trial."""
 
     def __init__(self, model: JumperModel, settings: MovingHorizonSettings | None = None,
-                 max_wait_s: float = 0.1) -> None:
+                 max_wait_s: float = 0.3) -> None:
+        """``max_wait_s`` [s of data]: how far one stream may run ahead before an update
+        goes on without the other (a stalled stream). It must exceed the skew with which a
+        live node receives the two streams: at 0.1 s a node on a loaded machine rejected
+        3-100 mocap samples per minute as 'too late' (a replay that bursts after a stall
+        delivers 0.1 s of force-plate samples between two takes of the mocap topic)."""
         self.model = model
         self.settings = st = settings if settings is not None else MovingHorizonSettings()
         st.validate()

@@ -110,8 +110,12 @@ class MovingHorizonSettings:
     # --- health (loss of control)
     slow_backlog_s: float = 0.15       # data waiting this long: update every other
                                        # period until caught up (live only; 0 = never)
-    max_backlog_s: float = 0.5         # data waiting this long: skip to the newest (live
-                                       # only: a consumer that fell behind; 0 = never)
+    max_backlog_s: float = 2.0         # data waiting this long: skip to the newest (live
+                                       # only: a consumer that fell behind; 0 = never). At
+                                       # 0.5 s the 60 s demo skipped at three take-offs
+                                       # (0.5-0.7 s of refined torques lost each, and Stage 2
+                                       # restarted on the gap) where every-other-period
+                                       # updates catch up within ~1 s
     max_cost_per_row: float = 25.0     # mean normalised residual^2 of the newest data
     recover_after_s: float = 0.05      # that long above the limit -> re-initialise
     flight_force_bw: float = 0.05      # estimated vertical force below this: airborne
