@@ -97,6 +97,13 @@ class SkeletalTrackerNode(TrackerNode):
                                 'of data (CPU vs latency)', low=1.0, high=2000.0)
         self.iterations = p('iterations', d.iterations, 'mhe: Gauss-Newton iterations per '
                             'update', low=1, high=20)
+        self.slow_backlog_s = p('slow_backlog_s', d.slow_backlog_s, 'mhe: with more data '
+                                'than this waiting, update every other period until caught up '
+                                '(less latency after a burst; the estimates then depend on the '
+                                'timing) [s]; 0 = never', low=0.0, high=60.0)
+        self.max_backlog_s = p('max_backlog_s', d.max_backlog_s, 'mhe: with more data than '
+                               'this waiting, skip to the newest data and re-initialise [s]; '
+                               '0 = never', low=0.0, high=3600.0)
         self.side_rate_hz = p('side_rate_hz', 0.0, 'mhe: rate of every output but the '
                               'refined joint torques (segment angles, coordinates, ground '
                               'wrench, the low-latency topics) [Hz]; 0 = every force-plate '
@@ -145,6 +152,8 @@ class SkeletalTrackerNode(TrackerNode):
             angle_cutoff_hz=self.angle_cutoff_hz, force_cutoff_hz=self.force_cutoff_hz,
             lookahead_s=self.lookahead_s, window_s=self.filter_window_s)
         self.mhe_settings = d.with_(lag_s=self.lag_s, window_s=self.window_s,
+                                    slow_backlog_s=self.slow_backlog_s,
+                                    max_backlog_s=self.max_backlog_s,
                                     update_rate_hz=self.update_rate_hz,
                                     iterations=self.iterations,
                                     angle_rate_hz=self.angle_rate_hz,
@@ -152,6 +161,7 @@ class SkeletalTrackerNode(TrackerNode):
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
+            'slow_backlog_s': self.slow_backlog_s, 'max_backlog_s': self.max_backlog_s,
             'side_rate_hz': self.side_rate_hz,
             'lookahead_s': self.lookahead_s,
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
