@@ -255,8 +255,13 @@ class TrackerNode(NmtNode):
         qos = data_qos(self.qos_depth, self.input_reliable)
         if self.take_period_s > 0:
             self.polled = PolledSubscriptions(self)
-            for topic, kind in self.INPUTS.items():
-                self.polled.add(topic, kind, qos, raw=False)
+            # taken fastest stream first: while a long take of the force plate runs, newer
+            # samples of the slower stream arrive and are taken after it, so a batch never
+            # holds the fast stream far ahead of the slow one (a node that fell behind took
+            # 0.3 s of force-plate data past its mocap and rejected mocap samples as late)
+            periods = {topic: gate.period_ns for topic, gate in self.gates.items()}
+            for topic in sorted(self.INPUTS, key=lambda t: periods.get(t, 0)):
+                self.polled.add(topic, self.INPUTS[topic], qos, raw=False)
             self.create_timer(self.take_period_s, self.take_inputs)
         else:
             for topic, kind in self.INPUTS.items():
