@@ -14,7 +14,8 @@
    low-latency parameter files, at each replay rate, on the bag and on the same jump preceded
    by ``--quiet-start`` seconds of quiet standing (so the start-up of the trackers, about
    0.1 s for the initial state, is over when the jump begins): latency from an observation's
-   publication to the torque / muscle-force estimate for that instant (p50/p99/max), each
+   arrival to the torque / muscle-force estimate for that instant (the recorder's receive
+   times; p50/p99/max), each
    node's CPU share while active, messages published == recorded, wall time. The fastest
    rate at which every message was recorded and every node finished is reported.
 """
@@ -164,7 +165,7 @@ def graph_tables(bag: Path, rates: list[float], repeat: int, label: str = '') ->
     from nmt_ros.study.recording_evaluation import graph_summary
 
     print(f'\n2. the graph as processes (nmt launch --record){label}, latency from an '
-          'observation\'s publication [ms]')
+          'observation\'s arrival (receive times) [ms]')
     header = (f'{"params":>12} {"rate":>5} | torques p50 p99 max | forces p50 p99 max | '
               'CPU share obs/skel/musc/rec | lossless | wall s')
     print(header)

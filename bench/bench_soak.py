@@ -15,8 +15,8 @@ The bag's observation topics are looped end to end with shifted stamps
 - loss: every topic's published count (the producers' end-of-stream announcements) against
   the recorded count (target: 0 lost), the recording's files;
 - errors: ERROR-level records on /nmt/status and the launcher's problems (target: 0);
-- latency p99 per minute from the recording (estimate publish time - observation publish
-  time for the same stamp; only minutes that have estimates).
+- latency p99 per minute from the recording (the recorder's receive time of the estimate -
+  that of the observation with the same stamp; only minutes that have estimates).
 
 With the shipped reference jump the trackers estimate the first copy's push-off and then, by
 design of the current Stage 1 (tracking ends in flight), only take their inputs; the sustained

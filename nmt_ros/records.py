@@ -54,9 +54,9 @@ class Truth:
         """The samples with t0 <= t <= t1 [s] (e.g. the part of a record that was replayed);
         lift-off, anchors and info unchanged."""
         keep = (self.t >= t0) & (self.t <= t1)
-        arrays = {f: getattr(self, f)[keep] for f in
-                  ('t', 'q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's', 'point_forces')}
-        return Truth(**arrays, x0=self.x0, liftoff_s=self.liftoff_s, info=self.info)
+        return replace(self, **{f: getattr(self, f)[keep] for f in
+                                ('t', 'q', 'qd', 'qdd', 'a', 'u', 'f', 'tau', 's',
+                                 'point_forces')})
 
 
 @dataclass
