@@ -138,7 +138,7 @@ class MuscleTrackerNode(TrackerNode):
         stamps = out.stamp_ns
         self.publish_batches(stamps, {
             MUSCLE_FORCES: joint_state_blobs(stamps, MUSCLES, position=out.l_mt,
-                                                   velocity=out.v_mt, effort=out.f)})
+                                             velocity=out.v_mt, effort=out.f)})
         # activations and excitations: every instant, or the first of each side-rate period
         keep = (self.side_decimator.keep(out.t) if self.side_decimator is not None
                 else np.ones(out.t.size, dtype=bool))
