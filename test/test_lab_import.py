@@ -290,8 +290,10 @@ def test_cli_on_the_shipped_recording_matches_the_shipped_bag(tmp_path: Path) ->
     assert proc.returncode == 0, proc.stderr
     new = read_observations(out)
     shipped = read_observations(REPO / 'bags' / 'real_dropjump')
-    np.testing.assert_array_equal(new.angles, shipped.angles)
-    np.testing.assert_array_equal(new.wrench, shipped.wrench)
+    # the same numbers up to the last bits (OpenSim's IK posing differs in the 16th digit
+    # between builds of its wheel)
+    np.testing.assert_allclose(new.angles, shipped.angles, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(new.wrench, shipped.wrench, rtol=0, atol=1e-9)
     np.testing.assert_allclose(new.t_angles, np.arange(245) * 0.01, atol=1e-9)
     proc = subprocess.run([sys.executable, '-m', 'nmt_ros.cli.main', 'import-lab',
                            '--trc', str(REAL / 'MarkerData' / 'DJ1.trc'), '--out',

@@ -79,3 +79,59 @@ def test_static_squat_holds(model):
     s = model.call(model.contact_outputs, sq.q, np.zeros(6), sq.x0)[0]
     np.testing.assert_allclose(s[1], model.p.body_weight, rtol=1e-9)  # springs carry BW
     assert abs(s[0]) < 1e-9            # no fore-aft force at rest
+
+
+def test_paths_beyond_their_range_continue_to_first_order(model):
+    """Inside ``path_ranges_deg`` the lengths are the fitted polynomials exactly; beyond, the
+    first-order continuation from the range's edge: lengths continuous, moment arms (central
+    differences, independent of AD) those of the edge and bounded far beyond."""
+    import casadi as ca
+
+    from nmt_ros.model.paths import polynomial
+
+    m = model.p.muscles
+    coords = ('ankle_angle', 'knee_angle', 'hip_flexion')
+    rng = np.random.default_rng(11)
+    lo = np.array([min(p.fit_range[p.coordinates.index(c), 0] for p in m.paths.values()
+                       if c in p.coordinates) for c in coords])
+    hi = np.array([max(p.fit_range[p.coordinates.index(c), 1] for p in m.paths.values()
+                       if c in p.coordinates) for c in coords])
+    inside = lo + (hi - lo) * rng.uniform(0.02, 0.98, (200, 3))
+    lmt, = model.batch(model.musculotendon_lengths, inside)
+    for i, name in enumerate(m.names):
+        p = m.paths[name]
+        x = ca.SX.sym('x', len(p.coordinates))
+        raw = ca.Function('raw', [x], [polynomial([x[k] for k in range(x.numel())],
+                                                  p.exponents, p.coefficients)])
+        cols = [coords.index(c) for c in p.coordinates]
+        want = np.array([float(raw(inside[n, cols])) for n in range(200)])
+        np.testing.assert_allclose(lmt[:, i], want, rtol=0, atol=1e-12)
+    # beyond each edge of each coordinate (the others inside): moment arms frozen at the edge
+    h = 1e-6
+    for j in range(3):
+        for edge, sign in ((lo[j], -1.0), (hi[j], 1.0)):
+            base = inside[:20].copy()
+            at = base.copy()
+            at[:, j] = edge - sign * 2 * h               # just inside
+            C_edge, = model.batch(model.moment_arm_matrix, at)
+            for beyond in (0.1, 0.5, 1.5):               # rad past the edge
+                far = base.copy()
+                far[:, j] = edge + sign * beyond
+                C_far, = model.batch(model.moment_arm_matrix, far)
+                e = np.zeros(3)
+                e[j] = h
+                lp, = model.batch(model.musculotendon_lengths, far + e)
+                lm, = model.batch(model.musculotendon_lengths, far - e)
+                np.testing.assert_allclose(C_far[:, j, :], -(lp - lm) / (2 * h), atol=1e-7)
+                np.testing.assert_allclose(C_far[:, j, :], C_edge[:, j, :], atol=1e-5)
+            # continuous lengths across the edge
+            a, b = base.copy(), base.copy()
+            a[:, j], b[:, j] = edge - sign * h, edge + sign * h
+            la, = model.batch(model.musculotendon_lengths, a)
+            lb, = model.batch(model.musculotendon_lengths, b)
+            assert np.abs(la - lb).max() < 1e-6
+    # moment arms stay anatomical far beyond (the raw 9th-order polynomials reach 0.8 m)
+    far = np.array([[np.radians(-90.0), np.radians(-200.0), np.radians(200.0)],
+                    [np.radians(90.0), np.radians(60.0), np.radians(-90.0)]])
+    C_far, = model.batch(model.moment_arm_matrix, far)
+    assert np.abs(C_far).max() < 0.1

@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'the moving-horizon estimator the live graph runs (any length), the '
                         "same optimal tracking with free joint torques, or the paper's "
                         'skeletal motion tracker; auto (default): optimal_muscle up to 1080 '
-                        'samples, mhe beyond')
+                        "samples when the paper's tracker (its initial guess) follows the "
+                        'whole record, else mhe')
     parser.add_argument('--stage2-kr', type=float, default=None,
                         help='Stage 2 effort weight kR (default: stage2.yaml, the paper\'s 1000; '
                         'lower tracks the Stage-1 torques more closely)')

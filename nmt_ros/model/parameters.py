@@ -67,6 +67,9 @@ class MusclePath:
     coordinates: tuple[str, ...]
     exponents: np.ndarray      # [n_terms, n_coordinates] int
     coefficients: np.ndarray   # [n_terms]
+    # [n_coordinates, 2] rad: where the polynomial is used (data file ``path_ranges_deg``;
+    # None: everywhere); beyond, the path is continued linearly (``paths.guarded_polynomial``)
+    fit_range: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,7 @@ def load_parameters(path: str | Path | None = None, **overrides: float) -> Jumpe
     if tuple(m['names']) != MUSCLES:
         raise ValueError(f'{path}: muscles must be {MUSCLES}, got {m["names"]}')
     scale = float(overrides.get('strength_scale', m['strength_scale']))
+    ranges = d.get('path_ranges_deg') or {}
     paths = {}
     for name, p in (d.get('paths') or {}).items():
         if name == 'source':
@@ -151,7 +155,9 @@ def load_parameters(path: str | Path | None = None, **overrides: float) -> Jumpe
         paths[name] = MusclePath(
             coordinates=tuple(p['coordinates']),
             exponents=np.asarray(p['exponents'], dtype=int).reshape(-1, len(p['coordinates'])),
-            coefficients=_vec(p['coefficients']))
+            coefficients=_vec(p['coefficients']),
+            fit_range=(np.radians([ranges[c] for c in p['coordinates']])
+                       if all(c in ranges for c in p['coordinates']) else None))
     muscles = MuscleParameters(
         names=MUSCLES, opensim_names=tuple(m['opensim_names']),
         f0=_vec(m['max_isometric_force_one_leg']) * int(m['legs']) * scale,

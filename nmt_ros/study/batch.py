@@ -2,13 +2,14 @@
 
 What ``nmt track BAG --out DIR`` runs (and the first step of ``nmt reproduce``): Stage 1
 (by default optimal tracking of all observations with the joint torques made by the model's
-muscles; ``'optimal'``: free joint torques; ``'skt'``: the paper's skeletal motion tracker,
-whose result is also the others' initial guess), the IVD baseline, Stage 2 and the NMT
-simulation (``nmt_ros.study.pipeline.run_nmt``). Writes ``DIR/estimates/`` (a bag of the
-/nmt/* topics stamped with observation time), ``DIR/opensim/`` (the estimates as OpenSim
-files, ``nmt_ros.study.opensim_results``) and, when the bag carries ``/truth/*``,
-``DIR/metrics.json`` (``stage1_method`` says which Stage 1; its ``skt`` block holds the
-Stage-1 results either way) and the paper-style figures.
+muscles, from the paper's skeletal motion tracker's result, or the moving-horizon estimator
+when that tracker loses control or the record is long; ``'optimal'``: free joint torques;
+``'skt'``: the paper's tracker alone; ``'mhe'``: the moving-horizon estimator), the IVD
+baseline, Stage 2 and the NMT simulation (``nmt_ros.study.pipeline.run_nmt``). Writes
+``DIR/estimates/`` (a bag of the /nmt/* topics stamped with observation time),
+``DIR/opensim/`` (the estimates as OpenSim files, ``nmt_ros.study.opensim_results``) and,
+when the bag carries ``/truth/*``, ``DIR/metrics.json`` (``stage1_method`` says which
+Stage 1; its ``skt`` block holds the Stage-1 results either way) and the paper-style figures.
 
 Any bag: the model is the bag's subject (``BAG/subject.yaml``, written by ``nmt import-lab``;
 the shipped jumper when there is none); the rates are the observations' own (the output grid
@@ -77,9 +78,13 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         # the moving-horizon estimator, as live
         n = int((obs.t_wrench >= (start_s or obs.t_wrench[0]) - 1e-9).sum())
         limit = OptimalTrackingSettings().max_intervals
-        stage1 = 'optimal_muscle' if n <= limit else 'mhe'
-        say(f'Stage 1: {stage1} ({n} force-plate samples to track; optimal tracking up to '
-            f'{limit})')
+        if n > limit:
+            stage1 = 'mhe'
+            say(f'Stage 1: mhe ({n} force-plate samples to track; optimal tracking up to '
+                f'{limit})')
+        else:
+            say(f'Stage 1: optimal_muscle from the skeletal tracker\'s result, or mhe if the '
+                f'tracker loses control ({n} force-plate samples to track)')
     start = plan_start(model, obs, start_s, needs_state=stage1 != 'mhe')
     if start.balance is not None:
         b = start.balance
@@ -102,6 +107,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
                                           window_length_s=window, stage2_k_r=stage2_k_r,
                                           rate_hz=rate_w, skt=skt),
                   progress=say, start=start.state, t_start_s=start.t_s)
+    stage1 = run.stage1_method
     out.mkdir(parents=True, exist_ok=True)
     estimates = run.estimates().shifted(start.t_s)       # back on the recording's time
     facts = {'nmt.track': {'start_s': start.t_s, 'start_reason': start.reason,

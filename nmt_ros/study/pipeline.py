@@ -46,7 +46,9 @@ class NMTSettings:
     conditioning: ConditioningSettings = ConditioningSettings()
     skt: SKTSettings = SKTSettings()
     # 'skt' (the paper) | 'optimal' (optimal tracking, free joint torques) |
-    # 'optimal_muscle' (optimal tracking with the joint torques made by the muscles)
+    # 'optimal_muscle' (optimal tracking with the joint torques made by the muscles) |
+    # 'mhe' (the moving-horizon estimator, as live) | 'auto': optimal_muscle from the
+    # skeletal tracker's result when the tracker followed the whole record, else mhe
     stage1: str = 'skt'
     stage2_mode: str = 'full'            # 'full' (the paper) | 'windowed'
     window_length_s: float | None = None  # windowed mode: H (default from stage2.yaml)
@@ -68,6 +70,7 @@ class NMTRun:
     nmt_sim: Simulation | None
     a0: np.ndarray
     cpu_s: dict = field(default_factory=dict)
+    stage1_method: str = ''              # the Stage 1 that ran (``NMTSettings.stage1``)
 
     @property
     def ok(self) -> bool:
@@ -117,7 +120,28 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     for note in cond.notes:
         say(f'conditioning: {note}')
 
-    if settings.stage1 == 'mhe':
+    method = settings.stage1
+    if method not in STAGE1_METHODS + ('auto',):
+        raise ValueError(f'stage1 must be one of {STAGE1_METHODS + ("auto",)}, not {method!r}')
+    skt = None
+    if method == 'auto':
+        # Optimal tracking is only as good as its initial guess: from a tracker that lost
+        # control (the real drop jump's landing) IPOPT settles 16-21 deg and 40 % BW away
+        # from the data, where the moving-horizon estimator, which re-initialises, follows
+        # it to 1.6-2.7 deg and 9 % BW
+        say('Stage 1: skeletal motion tracker (optimal tracking\'s initial guess)')
+        skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
+        cpu['stage1'] = skt.cpu_s + cpu['conditioning']
+        if skt.ok:
+            method = 'optimal_muscle'
+        else:
+            event = skt.events[0] if skt.events else {'t': float('nan'), 'reason': skt.status}
+            say(f'the skeletal tracker lost control at {event["t"] + t_start_s:.3f} s '
+                f'({event["reason"]}): '
+                'Stage 1 is the moving-horizon estimator (optimal tracking needs a guess of '
+                'the whole record)')
+            method = 'mhe'
+    if method == 'mhe':
         from nmt_ros.tracking.moving_horizon.estimator import estimate
 
         say('Stage 1: moving-horizon estimator (the live estimator fed the whole record)')
@@ -127,15 +151,15 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         cpu['stage1'] = skt.cpu_s
         for e in mhe.events:
             if e.level != 'info':
-                say(f'  {e.level} at {e.t:.3f} s: {e.message}')
-    else:
+                say(f'  {e.level} at {e.t + t_start_s:.3f} s: {e.message}')
+    elif skt is None:
         say('Stage 1: skeletal motion tracker')
         skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
         cpu['stage1'] = skt.cpu_s + cpu['conditioning']
-    if settings.stage1 in ('optimal', 'optimal_muscle') and skt.t.size >= 2:
+    if method in ('optimal', 'optimal_muscle') and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 
-        actuation = 'muscle' if settings.stage1 == 'optimal_muscle' else 'torque'
+        actuation = 'muscle' if method == 'optimal_muscle' else 'torque'
         say(f'Stage 1: optimal tracking of all observations, {actuation} actuation '
             '(from the tracker\'s result)')
         # The tracker's result is only the initial guess: optimal tracking also runs after
@@ -154,13 +178,12 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         else:
             say(f'optimal tracking failed ({opt.status}); Stage 1 is the tracker\'s result')
             skt.events = skt.events + [{'t': 0.0, 'reason': f'optimal tracking: {opt.status}'}]
-    elif settings.stage1 not in STAGE1_METHODS:
-        raise ValueError(f'stage1 must be one of {STAGE1_METHODS}, not {settings.stage1!r}')
-    if settings.stage1 == 'mhe':
-        return _run_streamed(model, obs, settings, cond, skt, cpu, say, start)
+    if method == 'mhe':
+        return replace(_run_streamed(model, obs, settings, cond, skt, cpu, say, start),
+                       stage1_method=method)
     if not skt.ok:
         say(f'Stage 1 lost control: {skt.events[0]["reason"]} at '
-            f'{skt.events[0]["t"]:.3f} s')
+            f'{skt.events[0]["t"] + t_start_s:.3f} s')
 
     say('IVD baseline')
     c = time.process_time()
@@ -191,7 +214,8 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
                                   float(stage2.t[-1]) + settings.flight_s, settings.rate_hz)
         cpu['nmt_simulation'] = time.process_time() - c
     cpu['nmt_total'] = cpu['stage1'] + cpu.get('stage2', 0.0)
-    return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu)
+    return NMTRun(cond=cond, skt=skt, ivd=ivd, stage2=stage2, nmt_sim=nmt_sim, a0=a0, cpu_s=cpu,
+                  stage1_method=method)
 
 
 def _run_streamed(model: JumperModel, obs: Observations, settings: NMTSettings,
