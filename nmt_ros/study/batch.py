@@ -26,9 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from nmt_ros.io.bags import bag_info
+from nmt_ros.io.opensim_files import read_table
 from nmt_ros.io.trial_bag import has_truth, read_observations, read_truth, write_estimates_bag
 from nmt_ros.model.subject import load_subject_model, subject_file
 from nmt_ros.study.metrics import compute_metrics
+from nmt_ros.study.observation_fit import format_fit, id_agreement, observation_fit
 from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
@@ -124,6 +126,15 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     write_opensim_estimates(out / 'opensim', model, run, t_offset_s=start.t_s)
     say(f'OpenSim files: {out / "opensim"} (model: nmt export-osim'
         f'{"" if subject is None else f" --subject {subject}"})')
+    s1 = estimates.stage1
+    fit = {'observation_fit': observation_fit(obs, s1.t, s1.q[:, :4], s1.s,
+                                              model.p.body_weight)}
+    id_file = bag / 'opensim_id.sto' if bag.is_dir() else None
+    if id_file is not None and id_file.exists():
+        fit['opensim_id'] = {'file': str(id_file),
+                             **id_agreement(obs, s1.t, s1.tau, read_table(id_file))}
+    say(format_fit(fit['observation_fit'], fit.get('opensim_id')))
+    (out / 'observation_fit.json').write_text(json.dumps(fit, indent=1))
     if not has_truth(bag):
         return None
     if start.t_s != 0.0:
@@ -148,6 +159,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         figures = False
     else:
         metrics = compute_metrics(model, run, truth, po)
+    metrics.update(fit)
     metrics['source_bag'] = str(bag)
     metrics['stage1_method'] = stage1
     metrics['stage2_k_r'] = (stage2_k_r if stage2_k_r is not None

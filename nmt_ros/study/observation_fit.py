@@ -1,0 +1,109 @@
+"""How well a Stage-1 estimate explains what was measured, and how its joint torques compare
+with OpenSim's inverse dynamics: the figures a lab recording without a truth can be judged by.
+
+* Segment angles: RMS of estimate - observation [deg] at the mocap instants the estimate
+  covers (the estimate interpolated onto them), per segment (foot, shank, thigh, HAT).
+* Ground wrench, over contact (measured vertical force above ``contact_n``): RMS of
+  estimate - measurement of Fx and Fy [% body weight] and of the moment about the foot COM
+  [N m], at the force-plate instants the estimate covers; and the contact timing, the first
+  and last loaded instant measured and estimated.
+* Joint torques against an OpenSim inverse dynamics table (``nmt_ros.osim.lab_id``: both
+  legs summed, nmt_ros signs) over the same contact instants: Pearson correlation and RMS
+  difference in % of the table's peak, per joint (ankle, knee, hip).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nmt_ros.io.opensim_files import OpenSimTable
+from nmt_ros.records import Observations
+
+SEGMENTS = ('foot', 'shank', 'thigh', 'hat')
+JOINTS = ('ankle', 'knee', 'hip')
+#: Columns of ``nmt_ros.osim.lab_id``'s table: both legs summed, nmt_ros signs.
+ID_COLUMNS = ('ankle_angle_moment', 'knee_angle_moment', 'hip_flexion_moment')
+
+
+def _onto(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Columns of y [n, k] linearly interpolated onto t_new [m] -> [m, k]."""
+    return np.column_stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])])
+
+
+def _covered(t_obs: np.ndarray, t_est: np.ndarray) -> np.ndarray:
+    return (t_obs >= t_est[0] - 1e-9) & (t_obs <= t_est[-1] + 1e-9)
+
+
+def observation_fit(obs: Observations, t_est: np.ndarray, theta_est: np.ndarray,
+                    s_est: np.ndarray, body_weight_n: float, contact_n: float = 20.0,
+                    ) -> dict:
+    """The estimate (instants t_est [s, the observations' time], segment angles theta_est
+    [n, 4] rad, ground wrench s_est [n, 3] N, N, N m) against ``obs`` (see the module)."""
+    t_est = np.asarray(t_est, dtype=float)
+    ka = _covered(obs.t_angles, t_est)
+    d_deg = np.degrees(_onto(obs.t_angles[ka], t_est, theta_est) - obs.angles[ka])
+    ok = np.isfinite(d_deg)
+    angle_rms = [float(np.sqrt(np.mean(d_deg[ok[:, j], j] ** 2))) if ok[:, j].any()
+                 else float('nan') for j in range(4)]
+    kw = _covered(obs.t_wrench, t_est)
+    t_w, meas = obs.t_wrench[kw], obs.wrench[kw]
+    est = _onto(t_w, t_est, s_est)
+    contact = meas[:, 1] > contact_n
+    out = {'span_s': [float(t_est[0]), float(t_est[-1])],
+           'angle_rms_deg': dict(zip(SEGMENTS, angle_rms)),
+           'angle_samples': int(ka.sum()), 'contact_n': contact_n,
+           'contact_samples': int(contact.sum())}
+    if contact.any():
+        err = (est - meas)[contact]
+        out['force_rms_pct_bw'] = {'fx': float(100 * np.sqrt(np.mean(err[:, 0] ** 2))
+                                               / body_weight_n),
+                                   'fy': float(100 * np.sqrt(np.mean(err[:, 1] ** 2))
+                                               / body_weight_n)}
+        out['moment_rms_nm'] = float(np.sqrt(np.mean(err[:, 2] ** 2)))
+    loaded = est[:, 1] > contact_n
+    out['contact_s'] = {
+        'measured': ([float(t_w[contact][0]), float(t_w[contact][-1])] if contact.any()
+                     else None),
+        'estimated': ([float(t_w[loaded][0]), float(t_w[loaded][-1])] if loaded.any()
+                      else None)}
+    return out
+
+
+def id_agreement(obs: Observations, t_est: np.ndarray, tau_est: np.ndarray,
+                 table: OpenSimTable, contact_n: float = 20.0) -> dict:
+    """Joint torques tau_est [n, 3] N m (ankle, knee, hip) against an OpenSim inverse dynamics
+    ``table`` over the measured contact instants the estimate covers (see the module)."""
+    t_est = np.asarray(t_est, dtype=float)
+    kw = _covered(obs.t_wrench, t_est)
+    t_w = obs.t_wrench[kw][obs.wrench[kw, 1] > contact_n]
+    t_w = t_w[(t_w >= table.time[0] - 1e-9) & (t_w <= table.time[-1] + 1e-9)]
+    if t_w.size < 3:
+        return {'samples': int(t_w.size)}
+    est = _onto(t_w, t_est, tau_est)
+    ref = np.column_stack([np.interp(t_w, table.time, table.column(c)) for c in ID_COLUMNS])
+    corr, rms = {}, {}
+    for j, name in enumerate(JOINTS):
+        corr[name] = float(np.corrcoef(est[:, j], ref[:, j])[0, 1])
+        rms[name] = float(100 * np.sqrt(np.mean((est[:, j] - ref[:, j]) ** 2))
+                          / np.abs(ref[:, j]).max())
+    return {'samples': int(t_w.size), 'correlation': corr, 'rms_pct_peak': rms,
+            'peak_nm': dict(zip(JOINTS, np.abs(ref).max(axis=0).tolist()))}
+
+
+def format_fit(fit: dict, agreement: dict | None = None) -> str:
+    """One or two lines for a report."""
+    a = fit['angle_rms_deg']
+    text = (f'fit to the observations ({fit["span_s"][0]:.3f}..{fit["span_s"][1]:.3f} s): '
+            f'segment angles {" / ".join(f"{a[s]:.1f}" for s in SEGMENTS)} deg RMS '
+            '(foot, shank, thigh, HAT)')
+    if 'force_rms_pct_bw' in fit:
+        f = fit['force_rms_pct_bw']
+        text += (f'; over contact ({fit["contact_samples"]} force samples above '
+                 f'{fit["contact_n"]:g} N): Fy {f["fy"]:.1f} / Fx {f["fx"]:.1f} % BW RMS, '
+                 f'moment {fit["moment_rms_nm"]:.0f} N m RMS')
+    if agreement and 'correlation' in agreement:
+        c, r = agreement['correlation'], agreement['rms_pct_peak']
+        text += ('\njoint torques vs OpenSim inverse dynamics over contact: correlation '
+                 f'{" / ".join(f"{c[j]:.2f}" for j in JOINTS)}, RMS '
+                 f'{" / ".join(f"{r[j]:.0f}" for j in JOINTS)} % of its peak '
+                 '(ankle, knee, hip)')
+    return text
