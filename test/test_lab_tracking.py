@@ -367,9 +367,10 @@ def test_launch_passes_the_bag_rates_and_subject():
     assert skel['subject_file'] == str((REAL_BAG / 'subject.yaml').resolve())
     muscle = params['muscle_tracker']['ros__parameters']
     assert muscle['input_rate_hz'] == 100.0 and muscle['subject_file'] == skel['subject_file']
+    assert skel['start_s'] == pytest.approx(0.7894)     # the import's step-off
     ref = graph_parameters({}, bag=REFERENCE_BAG)['skeletal_tracker']['ros__parameters']
     assert ref['wrench_rate_hz'] == 1080.0 and ref['angle_rate_hz'] == 120.0
-    assert ref['subject_file'] == ''
+    assert ref['subject_file'] == '' and 'start_s' not in ref
     mine = graph_parameters({'skeletal_tracker': {'ros__parameters': {'wrench_rate_hz': 500.0}}},
                             bag=REAL_BAG)
     assert mine['skeletal_tracker']['ros__parameters']['wrench_rate_hz'] == 500.0

@@ -254,6 +254,60 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
 
 
 @pytest.mark.slow
+def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
+    """start_s (a support the plates do not measure before it, e.g. a drop jump's box): the
+    samples before it are counted and said once on /nmt/status, not used; the estimates
+    start at the first force-plate instant from start_s and cover every one after it."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+    from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+
+    obs, sa, sw = _observations()
+    start_s = 0.05
+    skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
+        estimator='mhe', idle_flush_s=2.0, start_s=start_s))
+    probe = rclpy.create_node('probe_start', context=ros_context)
+    status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for n in (skel, probe):
+        executor.add_node(n)
+    try:
+        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
+        n_a = 30                                  # 0.24 s of the reference jump
+        n_w = int(np.searchsorted(sw, sa[n_a - 1], side='right'))
+        events = sorted([(sa[i], 0, i) for i in range(n_a)]
+                        + [(sw[i], 1, i) for i in range(n_w)])
+        for stamp, kind, i in events:
+            if kind == 0:
+                pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
+                                             obs.angles[i]))
+            else:
+                pub_w.publish(to_planar_wrench(stamp, 'foot_com', obs.wrench[i]))
+            executor.spin_once(timeout_sec=0)
+        assert spin_until(executor, lambda: skel.status.state == 'finished', 20.0), \
+            skel.status.reports()[0]
+        published = skel.status.published[TORQUES]
+        assert spin_until(executor, lambda: len(outputs) >= published, 10.0)
+        early = int((obs.t_angles[:n_a] < start_s - 1e-9).sum()
+                    + (obs.t_wrench[:n_w] < start_s - 1e-9).sum())
+        assert skel.status.extra['before_start'] == early > 0
+        said = [r for r in status.records if 'before start_s = 0.05 s are not estimated'
+                in r.message]
+        assert said and len({r.message for r in said}) == 1
+    finally:
+        for n in (skel, probe):
+            executor.remove_node(n)
+            n.destroy_node()
+        executor.shutdown()
+    stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in outputs])
+    expected = sw[:n_w][obs.t_wrench[:n_w] >= start_s - 1e-9]
+    assert np.array_equal(stamps, expected), (stamps[:3], expected[:3])
+
+
+@pytest.mark.slow
 def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_context):
     """The default Stage 1 (estimator 'mhe'): a NaN angle is a missing value (reported, then
     bridged by the dynamics: the estimates go on at every instant), inf, short, misnamed,

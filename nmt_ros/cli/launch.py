@@ -34,6 +34,7 @@ import argparse
 from collections.abc import Mapping
 import copy
 from dataclasses import dataclass, field
+import json
 import os
 from pathlib import Path
 import signal
@@ -107,17 +108,35 @@ def _section(params: dict[str, Any], node: str) -> dict[str, Any]:
 
 
 def bag_parameters(bag: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """What the trackers must know of a bag: its rates (from the header stamps) and its
-    subject (``BAG/subject.yaml`` when there is one, else the shipped jumper)."""
+    """What the trackers must know of a bag: its rates (from the header stamps), its
+    subject (``BAG/subject.yaml`` when there is one, else the shipped jumper) and, for a lab
+    recording whose import found a support the plates do not measure (a drop jump's box),
+    the step-off the estimator starts at (``nmt import-lab``'s momentum balance)."""
     from nmt_ros.io.trial_bag import observation_rates
     from nmt_ros.model.subject import subject_file
 
     angle_rate, wrench_rate = observation_rates(bag)
     subject = subject_file(bag)
     subject = '' if subject is None else str(subject.resolve())
-    return {'skeletal_tracker': {'angle_rate_hz': angle_rate, 'wrench_rate_hz': wrench_rate,
-                                 'subject_file': subject},
+    skeletal = {'angle_rate_hz': angle_rate, 'wrench_rate_hz': wrench_rate,
+                'subject_file': subject}
+    step_off = imported_step_off_s(bag)
+    if step_off is not None:
+        skeletal['start_s'] = step_off
+    return {'skeletal_tracker': skeletal,
             'muscle_tracker': {'input_rate_hz': wrench_rate, 'subject_file': subject}}
+
+
+def imported_step_off_s(bag: str | os.PathLike) -> float | None:
+    """The step-off after an unmeasured support that ``nmt import-lab`` recorded in the
+    bag's metadata (``nmt.import`` momentum_balance step_off_s) [s, trial time], or None."""
+    from nmt_ros.io.bags import bag_info
+
+    facts = (bag_info(bag).custom_data or {}).get('nmt.import')
+    if not facts:
+        return None
+    value = (json.loads(facts).get('momentum_balance') or {}).get('step_off_s')
+    return None if value is None else float(value)
 
 
 def graph_parameters(base: Mapping[str, Any], *, bag: str | os.PathLike | None = None,
@@ -334,6 +353,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         '(default: a new temporary folder)')
     parser.add_argument('--duration', type=float, default=0.0, metavar='S',
                         help='replay only the first S seconds of the bag (default: all)')
+    parser.add_argument('--start', type=float, default=None, metavar='S',
+                        help='the skeletal tracker estimates from S s of trial time on '
+                             '(default: the step-off nmt import-lab found after an unmeasured '
+                             'support, else the first sample)')
     parser.add_argument('--timeout', type=float, default=None,
                         help='give up after this many seconds (default: the replay time + '
                              '420 s: a first run compiles the estimators)')
@@ -362,6 +385,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     timeout = args.timeout or replay_timeout_s(args.bag, args.rate, args.duration)
     extra = {'observation_publisher': {'duration_s': args.duration}} if args.duration else None
+    if args.start is not None:
+        extra = {**(extra or {}), 'skeletal_tracker': {'start_s': float(args.start)}}
     view = None if not args.view else {
         'host': args.view_host, 'port': args.view_port,
         'scene_rate_hz': float(args.scene_rate), 'scene_source': args.scene_source}

@@ -127,6 +127,11 @@ class SkeletalTrackerNode(TrackerNode):
                           'force plates get proportionally more (11 at 100 Hz)', low=1, high=64)
         self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
                               "by nmt import-lab; '' = the shipped jumper)")
+        self.start_s = p('start_s', 0.0, 'mhe: estimate from this trial time on [s]; earlier '
+                         'samples are counted and not used (a support the force plates do '
+                         'not measure, e.g. the box of a drop jump: nmt launch passes the '
+                         "step-off nmt import-lab found)", low=0.0, high=1e6)
+        self.before_start = 0
         self.bias_rate = p('bias_rate', SKTSettings().bias_rate, 'moment-bias estimator rate '
                            '[1/s] (0 = off)', low=0.0, high=1000.0)
         self.max_angle_error_deg = p('max_angle_error_deg', SKTSettings().max_angle_error_deg,
@@ -167,7 +172,8 @@ class SkeletalTrackerNode(TrackerNode):
             'substeps': self.substeps, 'angle_cutoff_hz': self.angle_cutoff_hz,
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
-            'bias_rate': self.bias_rate, 'subject_file': self.subject_file}
+            'bias_rate': self.bias_rate, 'subject_file': self.subject_file,
+            'start_s': self.start_s}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)
@@ -229,6 +235,14 @@ class SkeletalTrackerNode(TrackerNode):
         add = self.mhe.add_angles if topic == MOCAP_SEGMENT_ANGLES else self.mhe.add_wrench
         names = SEGMENTS if topic == MOCAP_SEGMENT_ANGLES else PLANAR
         for sample in samples:
+            if self.clock.t(sample.stamp_ns) < self.start_s - 1e-9:
+                if not self.before_start:
+                    self.status.event(OK, f'samples before start_s = {self.start_s:g} s are '
+                                      'not estimated', t=self.clock.t(sample.stamp_ns))
+                    self.notify()
+                self.before_start += 1
+                self.status.extra['before_start'] = self.before_start
+                continue
             gaps = np.flatnonzero(np.isnan(sample.values))
             if gaps.size:
                 self.masked += gaps.size
@@ -279,6 +293,7 @@ class SkeletalTrackerNode(TrackerNode):
     # ------------------------------------------------------------------ trial
     def on_trial_start(self, epoch_ns: int) -> None:
         self.polled_until = -np.inf
+        self.before_start = 0
         self.side_decimators = self._side_decimators()
         self.first_pending = np.inf
         self.status.extra['epoch_ns'] = epoch_ns

@@ -35,6 +35,7 @@ from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.stage2 import load_stage2_settings
@@ -105,9 +106,11 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         skt = skt.with_(flight_foot_weight=FLIGHT_FOOT_WEIGHT)
         say(f'Stage 1 in flight: foot angle weight {FLIGHT_FOOT_WEIGHT:g} while unloaded '
             f'(Table 1: {skt.weights[0]:g} on the ground)')
+    # the moving-horizon estimator at the bag's rates, as the live node gets them
+    mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w)
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
                                           window_length_s=window, stage2_k_r=stage2_k_r,
-                                          rate_hz=rate_w, skt=skt),
+                                          rate_hz=rate_w, skt=skt, mhe=mhe),
                   progress=say, start=start.state, t_start_s=start.t_s)
     stage1 = run.stage1_method
     out.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from nmt_ros.tracking.conditioning import cutoff_for_rate
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
 
@@ -63,7 +64,10 @@ class MovingHorizonSettings:
                                        # routine 2.2/1.9/3.8 -> 1.3/1.2/3.3 % of peak at 3)
     share_free: bool = False           # differentiate the load shares (else held, IRLS)
     # the ground wrench's smoothness: a penalty on its second derivative set so that, with the
-    # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline)
+    # force-plate noise, it acts as a low-pass of this cut-off (a smoothing spline); lowered to
+    # 0.4 x the plate's Nyquist frequency like the batch filters (20 Hz at 100 Hz: at 40 Hz
+    # the real drop jump's estimate left its angles by 4.0 / 2.6 / 4.3 deg RMS instead of
+    # 1.7 / 1.6 / 2.7, four losses of control instead of two)
     wrench_cutoff_hz: float = 40.0
     # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
     # 0.1 the HAT followed the mocap noise (+-0.5 deg at 3-5 Hz, hip torque +-40 N m in
@@ -147,9 +151,11 @@ class MovingHorizonSettings:
 
     def wrench_accel_sd(self, body_weight: float) -> np.ndarray:
         """Prior SD [3] of the wrench's 2nd derivative (N/s^2 per sqrt(s)): the smoothing
-        spline whose cut-off is ``wrench_cutoff_hz`` for samples at ``wrench_rate_hz`` of
-        the wrench noise: lambda = f_s / (sigma^2 (2 pi f_c)^4), sd = 1 / sqrt(lambda)."""
-        omega = 2 * np.pi * self.wrench_cutoff_hz
+        spline whose cut-off is ``wrench_cutoff_hz`` (at most 0.4 x the Nyquist frequency,
+        ``conditioning.cutoff_for_rate``) for samples at ``wrench_rate_hz`` of the wrench
+        noise: lambda = f_s / (sigma^2 (2 pi f_c)^4), sd = 1 / sqrt(lambda)."""
+        cutoff, _ = cutoff_for_rate(self.wrench_cutoff_hz, self.wrench_rate_hz)
+        omega = 2 * np.pi * cutoff
         return self.wrench_sd(body_weight) * omega ** 2 / np.sqrt(self.wrench_rate_hz)
 
     def validate(self) -> None:
