@@ -28,11 +28,17 @@ def test_exact_estimate_fits_to_zero_and_known_offsets_are_recovered():
     fit = observation_fit(obs, t, theta, s, BW)
     assert max(fit['angle_rms_deg'].values()) < 0.05
     assert fit['force_rms_pct_bw']['fy'] < 1e-6 and fit['moment_rms_nm'] < 1e-6
-    assert fit['contact_s']['measured'] == pytest.approx([0.501, 1.499], abs=1e-9)
-    assert fit['contact_s']['estimated'] == fit['contact_s']['measured']
+    assert fit['contacts_s']['measured'] == [pytest.approx([0.501, 1.499], abs=1e-9)]
+    assert fit['contacts_s']['estimated'] == fit['contacts_s']['measured']
     theta[:, 2] += np.radians(2.0)                   # thigh 2 deg off
     s[:, 1] += np.where(s[:, 1] > 20.0, 0.05 * BW, 0.0)   # Fy 5 % BW high in contact
     s[:, 2] -= 7.0
+    s[(t > 0.8) & (t < 0.9), 1] = 0.0                # an estimated flight inside the contact
+    fit = observation_fit(obs, t, theta, s, BW)
+    runs = fit['contacts_s']['estimated']
+    assert len(runs) == 2 and runs[0][1] == pytest.approx(0.8) and runs[1][0] == \
+        pytest.approx(0.9)
+    s[(t > 0.8) & (t < 0.9), 1] = obs.wrench[(t > 0.8) & (t < 0.9), 1] + 0.05 * BW
     fit = observation_fit(obs, t, theta, s, BW)
     assert fit['angle_rms_deg']['thigh'] == pytest.approx(2.0, abs=0.05)
     assert fit['angle_rms_deg']['foot'] < 0.05

@@ -5,8 +5,8 @@ with OpenSim's inverse dynamics: the figures a lab recording without a truth can
   covers (the estimate interpolated onto them), per segment (foot, shank, thigh, HAT).
 * Ground wrench, over contact (measured vertical force above ``contact_n``): RMS of
   estimate - measurement of Fx and Fy [% body weight] and of the moment about the foot COM
-  [N m], at the force-plate instants the estimate covers; and the contact timing, the first
-  and last loaded instant measured and estimated.
+  [N m], at the force-plate instants the estimate covers; and the contact timing: each
+  contact's first and last loaded instant, measured and estimated.
 * Joint torques against an OpenSim inverse dynamics table (``nmt_ros.osim.lab_id``: both
   legs summed, nmt_ros signs) over the same contact instants: Pearson correlation and RMS
   difference in % of the table's peak, per joint (ankle, knee, hip).
@@ -27,6 +27,13 @@ ID_COLUMNS = ('ankle_angle_moment', 'knee_angle_moment', 'hip_flexion_moment')
 def _onto(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Columns of y [n, k] linearly interpolated onto t_new [m] -> [m, k]."""
     return np.column_stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])])
+
+
+def _runs(t: np.ndarray, loaded: np.ndarray) -> list[list[float]]:
+    """[first, last] instant of each run of consecutive loaded samples."""
+    edges = np.diff(np.concatenate([[0], loaded.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [[float(t[a]), float(t[b])] for a, b in zip(starts, ends)]
 
 
 def _covered(t_obs: np.ndarray, t_est: np.ndarray) -> np.ndarray:
@@ -59,12 +66,8 @@ def observation_fit(obs: Observations, t_est: np.ndarray, theta_est: np.ndarray,
                                    'fy': float(100 * np.sqrt(np.mean(err[:, 1] ** 2))
                                                / body_weight_n)}
         out['moment_rms_nm'] = float(np.sqrt(np.mean(err[:, 2] ** 2)))
-    loaded = est[:, 1] > contact_n
-    out['contact_s'] = {
-        'measured': ([float(t_w[contact][0]), float(t_w[contact][-1])] if contact.any()
-                     else None),
-        'estimated': ([float(t_w[loaded][0]), float(t_w[loaded][-1])] if loaded.any()
-                      else None)}
+    out['contacts_s'] = {'measured': _runs(t_w, contact),
+                         'estimated': _runs(t_w, est[:, 1] > contact_n)}
     return out
 
 
