@@ -139,6 +139,14 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     say(format_fit(fit['observation_fit'], fit.get('opensim_id')))
     (out / 'observation_fit.json').write_text(json.dumps(fit, indent=1))
     if not has_truth(bag):
+        if figures:
+            from nmt_ros.study.figures import plot_lab_fit  # matplotlib
+
+            table = read_table(id_file) if 'opensim_id' in fit else None
+            plot_lab_fit(obs, estimates, out / 'fig_lab_fit.png', model.p.body_weight,
+                         model.p.muscles.f0, table, title=f'{bag.name}: estimate vs '
+                         f'measurement ({STAGE1_LABELS[stage1]})')
+            say(f'figure: {out / "fig_lab_fit.png"}')
         return None
     if start.t_s != 0.0:
         say(f'metrics skipped: tracking started at {start.t_s:.3f} s, the truth at 0')

@@ -171,3 +171,59 @@ def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
     ax.set(title='(C) Ground forces', ylabel='force (N)')
     ax.legend(fontsize=7)
     return _finish(fig, axes, truth.liftoff_s, path)
+
+
+def plot_lab_fit(obs: Observations, estimates: object, path: str | Path, body_weight: float,
+                 f0: np.ndarray, id_table: object | None = None,
+                 title: str = 'Lab recording: estimate vs measurement') -> Path:
+    """A tracked lab recording over the tracked span (``estimates``: ``TrialEstimates`` on
+    the recording's time): measured vs estimated ground forces [BW] and segment angles [deg],
+    the estimated joint torques [N m] (with OpenSim's inverse dynamics, ``id_table``, when
+    given) and the muscle forces [F0] (Stage 2's, else the estimator's)."""
+    s1 = estimates.stage1
+    t0, t1 = float(s1.t[0]), float(s1.t[-1])
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), constrained_layout=True)
+    kw = (obs.t_wrench >= t0 - 1e-9) & (obs.t_wrench <= t1 + 1e-9)
+    ax = axes[0, 0]
+    for j, (label, color) in enumerate((('Fx', 'C0'), ('Fy', 'C3'))):
+        ax.plot(obs.t_wrench[kw], obs.wrench[kw, j] / body_weight, color=color, lw=0.8,
+                alpha=0.5, label=f'{label} measured')
+        ax.plot(s1.t, s1.s[:, j] / body_weight, color=color, lw=1.5, label=f'{label} model')
+    ax.set_ylabel('ground force (BW)')
+    ax.legend(fontsize=8, ncol=2)
+    ax = axes[0, 1]
+    ka = (obs.t_angles >= t0 - 1e-9) & (obs.t_angles <= t1 + 1e-9)
+    for j, label in enumerate(SEGMENT_LABELS):
+        ax.plot(obs.t_angles[ka], np.degrees(obs.angles[ka, j]), '.', ms=2.5, color=f'C{j}')
+        ax.plot(s1.t, np.degrees(s1.q[:, j]), color=f'C{j}', lw=1.3, label=label)
+    ax.set_ylabel('segment angle (deg; dots: measured)')
+    ax.legend(fontsize=8, ncol=2)
+    ax = axes[1, 0]
+    for j, label in enumerate(('ankle', 'knee', 'hip')):
+        ax.plot(s1.t, s1.tau[:, j], color=f'C{j}', lw=1.5, label=f'{label} (estimate)')
+        if id_table is not None:
+            col = ('ankle_angle_moment', 'knee_angle_moment', 'hip_flexion_moment')[j]
+            keep = (id_table.time >= t0 - 1e-9) & (id_table.time <= t1 + 1e-9)
+            ax.plot(id_table.time[keep], id_table.column(col)[keep], color=f'C{j}', lw=0.8,
+                    ls='--', label=f'{label} (OpenSim ID)')
+    ax.set_ylabel('joint torque (N m)')
+    ax.legend(fontsize=8, ncol=2)
+    ax = axes[1, 1]
+    m = estimates.muscles
+    if m is not None:
+        t_m, f_m, src = m.t, m.f, 'Stage 2'
+    else:
+        t_m, f_m, src = s1.t, (s1.muscles or {}).get('f'), 'Stage 1'
+    if f_m is not None:
+        for i, label in enumerate(MUSCLE_LABELS):
+            ax.plot(t_m, f_m[:, i] / f0[i], lw=1.1, label=label)
+        ax.legend(fontsize=7, ncol=3)
+    ax.set_ylabel(f'muscle force (F0, {src})')
+    fig.suptitle(title)
+    for a in np.ravel(axes):
+        a.set_xlabel('time (s)')
+        a.set_xlim(t0, t1)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
