@@ -312,6 +312,11 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     bw = 94.5 * 9.81
     fy_rms = np.sqrt(np.mean((est_w.force[contact, 1] - obs_w.force[iw][contact, 1]) ** 2)) / bw
     assert contact.sum() > 50 and fy_rms < 0.12, fy_rms
+    # the same figures in observation_fit.json (computed the other way round: the estimate
+    # interpolated onto the measured instants), and the figure
+    fit = json.loads((out / 'observation_fit.json').read_text())['observation_fit']
+    assert fit['force_rms_pct_bw']['fy'] == pytest.approx(100 * fy_rms, abs=1.0)
+    assert (out / 'fig_lab_fit.png').stat().st_size > 10_000
 
 
 # --------------------------------------------------------------------------- the subject
