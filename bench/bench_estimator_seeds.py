@@ -1,7 +1,9 @@
 """The moving-horizon estimator (live Stage 1) on fresh noise realisations of a routine: the
 shipped routine's truth observed again with the routine generator's noise and bias under other
 seeds (``study.routine_observations``), each realisation tracked offline (= live) and scored
-by phase against the truth; per seed, then the mean and the worst over the seeds.
+by phase against the truth, with the height of every jump from the tracked motion
+(``study.recording_evaluation.jump_table``, as ``nmt demo`` reports it); per seed, then the
+mean and the worst over the seeds.
 
     python bench/bench_estimator_seeds.py [--bag bags/routine] [--seeds 1,2,3,4]
                                           [--duration 60] [--set key=value ...] [--json F]
@@ -30,13 +32,16 @@ from nmt_ros.io.bags import read_topics_arrays  # noqa: E402
 from nmt_ros.io.trial_bag import read_truth  # noqa: E402
 from nmt_ros.model.jumper import default_model  # noqa: E402
 from nmt_ros.records import Truth  # noqa: E402
+from nmt_ros.study.metrics import takeoffs  # noqa: E402
 from nmt_ros.study.phase_scores import PHASES, phase_scores  # noqa: E402
+from nmt_ros.study.recording_evaluation import jump_table  # noqa: E402
 from nmt_ros.study.routine_observations import (  # noqa: E402
     RoutineObservationSettings,
     make_routine_observations,
 )
 from nmt_ros.tracking.moving_horizon.estimator import estimate  # noqa: E402
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings  # noqa: E402
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE  # noqa: E402
 
 
 def plate_rate_truth(bag: str) -> tuple[Truth, Truth]:
@@ -80,23 +85,31 @@ def main() -> int:
                        obs.wrench[sw], settings)
         ref = phase_scores(model, scored, run.refined.t, run.refined.tau,
                            run.refined.muscles['f'])
+        r = run.refined
+        lift = takeoffs(r.t, r.s[:, 1], OBSERVATION_NOISE.force_sd_bw * model.p.body_weight)
+        jumps = jump_table(model, scored, r.t, r.q, r.qd, lift)
         row = {'seed': seed, 'restarts': run.restarts,
                'coverage': ref['all']['coverage'],
+               'jumps_tracked': jumps['tracked'], 'jumps': len(jumps['jumps']),
+               'jump_error_pct': jumps['mean_abs_error_pct'],
                **{ph: [*ref[ph]['torque_rms_pct_peak'].values(),
                        ref[ph]['muscle_force_rms_pct_f0']['mean']] for ph in PHASES}}
         rows.append(row)
         print(f"seed {seed}: {run.restarts} re-initialisations, coverage "
               f"{row['coverage']:.3f}; torques ankle/knee/hip % of peak, muscles % F0: " +
-              '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[ph])}" for ph in PHASES),
-              flush=True)
+              '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[ph])}" for ph in PHASES) +
+              f"; jumps {row['jumps_tracked']} of {row['jumps']} tracked, mean |height error| "
+              f"{row['jump_error_pct']:.1f} %", flush=True)
     summary = {'settings': overrides, 'seeds': rows}
     for name, fn in (('mean', np.mean), ('worst', np.max)):
         summary[name] = {'restarts': float(fn([r['restarts'] for r in rows])),
+                         'jump_error_pct': float(fn([r['jump_error_pct'] for r in rows])),
                          **{ph: np.round(fn([r[ph] for r in rows], axis=0), 2).tolist()
                             for ph in PHASES}}
         print(f"{name}: {summary[name]['restarts']:g} re-initialisations; " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in summary[name][ph])}"
-                        for ph in PHASES))
+                        for ph in PHASES) +
+              f"; mean |jump height error| {summary[name]['jump_error_pct']:.1f} %")
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=1))
     return 0

@@ -187,7 +187,7 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     return out
 
 
-def _jumps(model: Any, truth: Any, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
+def jump_table(model: Any, truth: Any, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
            liftoffs: np.ndarray) -> dict:
     """Every jump of the truth (its flights of at least 0.1 s) with the tracked motion's
     height from the tracker's lift-off nearest to it (within 0.1 s; none: not tracked)."""
@@ -306,7 +306,7 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
             truth = truth.between((obs.stamp_ns.min() - epoch) * 1e-9 - 1e-6,
                                   (obs.stamp_ns.max() - epoch) * 1e-9 + 1e-6)
         if tracked_jumps is not None:
-            summary['jumps'] = _jumps(model, truth, *tracked_jumps)
+            summary['jumps'] = jump_table(model, truth, *tracked_jumps)
         idx = np.clip(np.rint(np.interp(t, truth.t, np.arange(truth.t.size))).astype(int), 0,
                       truth.t.size - 1)
         # contact: the truth's feet carry weight (every stance of a long record; the paper's
