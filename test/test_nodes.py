@@ -2,6 +2,7 @@
 bad input on both trackers, the recorder's QoS rules, and the shipped parameter files."""
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 import time
 
@@ -253,33 +254,55 @@ def test_skeletal_tracker_rejects_bad_input_and_keeps_running(ros_context, tmp_p
     assert sum(1 for _ in read_raw(record, [ANGLES])) == counts[ANGLES]
 
 
-@pytest.mark.slow
-def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
-    """start_s (a support the plates do not measure before it, e.g. a drop jump's box): the
-    samples before it are counted and said once on /nmt/status, not used; the estimates
-    start at the first force-plate instant from start_s and cover every one after it."""
+@contextlib.contextmanager
+def _mhe_node(ros_context, probe_name, **overrides):
+    """A skeletal tracker node (estimator 'mhe', ``overrides``) and a probe wired around it
+    (``_tracker_io``) on one executor, its inputs matched; torn down afterwards. Yields
+    (node, status probe, joint-torque list, angle publisher, wrench publisher, executor)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from msg_adapters.joint_state import to_joint_state
-    from msg_adapters.planar import to_planar_wrench
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
-    obs, sa, sw = _observations()
-    start_s = 0.05
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        estimator='mhe', idle_flush_s=2.0, start_s=start_s))
-    probe = rclpy.create_node('probe_start', context=ros_context)
+        estimator='mhe', idle_flush_s=2.0, **overrides))
+    probe = rclpy.create_node(probe_name, context=ros_context)
     status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
     executor = SingleThreadedExecutor(context=ros_context)
     for n in (skel, probe):
         executor.add_node(n)
     try:
         assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
-        n_a = 30                                  # 0.24 s of the reference jump
-        n_w = int(np.searchsorted(sw, sa[n_a - 1], side='right'))
-        events = sorted([(sa[i], 0, i) for i in range(n_a)]
-                        + [(sw[i], 1, i) for i in range(n_w)])
+        yield skel, status, outputs, pub_a, pub_w, executor
+    finally:
+        for n in (skel, probe):
+            executor.remove_node(n)
+            n.destroy_node()
+        executor.shutdown()
+
+
+def _in_stamp_order(sa, sw, n_a):
+    """The first ``n_a`` angle samples and the force-plate samples up to the last of them,
+    as (stamp, 0 = angle | 1 = wrench, index) in stamp order; and that wrench count."""
+    n_w = int(np.searchsorted(sw, sa[n_a - 1], side='right'))
+    return sorted([(sa[i], 0, i) for i in range(n_a)]
+                  + [(sw[i], 1, i) for i in range(n_w)]), n_w
+
+
+@pytest.mark.slow
+def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
+    """start_s (a support the plates do not measure before it, e.g. a drop jump's box): the
+    samples before it are counted and said once on /nmt/status, not used; the estimates
+    start at the first force-plate instant from start_s and cover every one after it."""
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+
+    obs, sa, sw = _observations()
+    start_s = 0.05
+    n_a = 30                                      # 0.24 s of the reference jump
+    events, n_w = _in_stamp_order(sa, sw, n_a)
+    with _mhe_node(ros_context, 'probe_start', start_s=start_s) as (
+            skel, status, outputs, pub_a, pub_w, executor):
         for stamp, kind, i in events:
             if kind == 0:
                 pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
@@ -297,11 +320,6 @@ def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
         said = [r for r in status.records if 'before start_s = 0.05 s are not estimated'
                 in r.message]
         assert said and len({r.message for r in said}) == 1
-    finally:
-        for n in (skel, probe):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown()
     stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in outputs])
     expected = sw[:n_w][obs.t_wrench[:n_w] >= start_s - 1e-9]
     assert np.array_equal(stamps, expected), (stamps[:3], expected[:3])
@@ -313,28 +331,15 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
     bridged by the dynamics: the estimates go on at every instant), inf, short, misnamed,
     wrongly framed, duplicate and late samples are rejected and reported; nothing published
     is non-finite, and the estimates are stamped with force-plate instants."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
-    from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
-    skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        estimator='mhe', idle_flush_s=2.0))
-    probe = rclpy.create_node('probe_mhe', context=ros_context)
-    status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
-    executor = SingleThreadedExecutor(context=ros_context)
-    for n in (skel, probe):
-        executor.add_node(n)
-    try:
-        assert spin_until(executor, lambda: pub_w.get_subscription_count() == 1, 10.0)
-        n_a = 22                                  # 0.175 s of the reference jump
-        n_w = int(np.searchsorted(sw, sa[n_a - 1], side='right'))
-        events = sorted([(sa[i], 0, i) for i in range(n_a)]
-                        + [(sw[i], 1, i) for i in range(n_w)])
+    n_a = 22                                      # 0.175 s of the reference jump
+    events, n_w = _in_stamp_order(sa, sw, n_a)
+    with _mhe_node(ros_context, 'probe_mhe') as (skel, status, outputs, pub_a, pub_w,
+                                                 executor):
         for stamp, kind, i in events:
             if kind == 0:
                 msg = to_joint_state(stamp, segs, obs.angles[i])
@@ -376,11 +381,6 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
         # original and sorted by stamp, a 'duplicate stamp': rejected either way)
         assert skel.status.rejected == {ANGLES: 2, WRENCH: 4}
         assert skel.status.extra['missing_values'] == 2
-    finally:
-        for n in (skel, probe):
-            executor.remove_node(n)
-            n.destroy_node()
-        executor.shutdown()
     stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in outputs])
     effort = np.array([m.effort for m in outputs])
     # refined estimates at every accepted force-plate instant from the first, none invented

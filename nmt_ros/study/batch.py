@@ -133,18 +133,18 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     fit = {'observation_fit': observation_fit(obs, s1.t, s1.q[:, :4], s1.s,
                                               model.p.body_weight)}
     id_file = bag / 'opensim_id.sto' if bag.is_dir() else None
-    if id_file is not None and id_file.exists():
+    id_table = read_table(id_file) if id_file is not None and id_file.exists() else None
+    if id_table is not None:
         fit['opensim_id'] = {'file': str(id_file),
-                             **id_agreement(obs, s1.t, s1.tau, read_table(id_file))}
+                             **id_agreement(obs, s1.t, s1.tau, id_table)}
     say(format_fit(fit['observation_fit'], fit.get('opensim_id')))
     (out / 'observation_fit.json').write_text(json.dumps(fit, indent=1))
     if not has_truth(bag):
         if figures:
             from nmt_ros.study.figures import plot_lab_fit  # matplotlib
 
-            table = read_table(id_file) if 'opensim_id' in fit else None
             plot_lab_fit(obs, estimates, out / 'fig_lab_fit.png', model.p.body_weight,
-                         model.p.muscles.f0, table, title=f'{bag.name}: estimate vs '
+                         model.p.muscles.f0, id_table, title=f'{bag.name}: estimate vs '
                          f'measurement ({STAGE1_LABELS[stage1]})')
             say(f'figure: {out / "fig_lab_fit.png"}')
         return None

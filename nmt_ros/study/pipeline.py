@@ -123,15 +123,16 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
     method = settings.stage1
     if method not in STAGE1_METHODS + ('auto',):
         raise ValueError(f'stage1 must be one of {STAGE1_METHODS + ("auto",)}, not {method!r}')
-    skt = None
+    if method != 'mhe':
+        guess = ' (optimal tracking\'s initial guess)' if method != 'skt' else ''
+        say(f'Stage 1: skeletal motion tracker{guess}')
+        skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
+        cpu['stage1'] = skt.cpu_s + cpu['conditioning']
     if method == 'auto':
         # Optimal tracking is only as good as its initial guess: from a tracker that lost
         # control (the real drop jump's landing) IPOPT settles 16-21 deg and 40 % BW away
         # from the data, where the moving-horizon estimator, which re-initialises, follows
         # it to 1.6-2.7 deg and 9 % BW
-        say('Stage 1: skeletal motion tracker (optimal tracking\'s initial guess)')
-        skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
-        cpu['stage1'] = skt.cpu_s + cpu['conditioning']
         if skt.ok:
             method = 'optimal_muscle'
         else:
@@ -152,10 +153,6 @@ def run_nmt(model: JumperModel, obs: Observations, settings: NMTSettings = NMTSe
         for e in mhe.events:
             if e.level != 'info':
                 say(f'  {e.level} at {e.t + t_start_s:.3f} s: {e.message}')
-    elif skt is None:
-        say('Stage 1: skeletal motion tracker')
-        skt = track_stage1(model, cond, settings.skt, settings.rate_hz, start=start)
-        cpu['stage1'] = skt.cpu_s + cpu['conditioning']
     if method in ('optimal', 'optimal_muscle') and skt.t.size >= 2:
         from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings, track_optimal
 
