@@ -265,7 +265,7 @@ def _mhe_node(ros_context, probe_name, **overrides):
     from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
 
     skel = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
-        estimator='mhe', idle_flush_s=2.0, **overrides))
+        **{'estimator': 'mhe', 'idle_flush_s': 2.0, **overrides}))
     probe = rclpy.create_node(probe_name, context=ros_context)
     status, outputs, pub_a, pub_w = _tracker_io(probe, probe)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -388,6 +388,52 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
     assert np.array_equal(stamps, accepted), (np.setdiff1d(stamps, accepted),
                                               np.setdiff1d(accepted, stamps))
     assert np.isfinite(effort).all() and np.abs(effort).max() < 1000.0
+
+
+def test_a_long_update_is_not_mistaken_for_silent_input(ros_context):
+    """The idle watchdog ends a trial after ``idle_flush_s`` without input, judged after the
+    waiting inputs were taken. An update slower than ``idle_flush_s`` (a re-initialisation on
+    a busy machine) inside that take is not silence: the trial goes on. (Before the fix idle
+    time counted from the batch's arrival: a 60 min soak ended its trial on "no input for
+    1.03 s" after a re-initialisation while the force plate streamed on.)"""
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+
+    obs, sa, sw = _observations()
+    events, _ = _in_stamp_order(sa, sw, 12)
+    idle_s = 0.3
+    with _mhe_node(ros_context, 'probe_idle', idle_flush_s=idle_s) as (
+            skel, _status, _outputs, pub_a, pub_w, executor):
+        def publish(part):
+            for stamp, kind, i in part:
+                if kind == 0:
+                    pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
+                                                 obs.angles[i]))
+                else:
+                    pub_w.publish(to_planar_wrench(stamp, 'foot_com', obs.wrench[i]))
+
+        def taken():
+            return sum(skel.status.received.values())
+
+        half = len(events) // 2
+        publish(events[:half])
+        assert spin_until(executor, lambda: taken() == half and skel.tracking, 10.0)
+        poll = skel.mhe.poll
+
+        def slow_poll():
+            time.sleep(idle_s + 0.3)
+            return poll()
+
+        skel.mhe.poll = slow_poll
+        publish(events[half:])
+        time.sleep(0.2)                           # delivered to the node's readers
+        skel.watchdog()                           # takes them; the update takes 0.6 s
+        assert taken() == len(events)
+        assert skel.tracking, skel.status.detail
+        skel.mhe.poll = poll
+        # without input, the watchdog does end the trial
+        assert spin_until(executor, lambda: not skel.tracking, 5.0)
+        assert 'no input for' in skel.status.detail
 
 
 def test_skeletal_tracker_reports_loss_of_control(ros_context):

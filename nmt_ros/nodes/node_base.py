@@ -293,10 +293,13 @@ class TrackerNode(NmtNode):
                  for topic, taken in self.polled.take_all().items()
                  for n, (msg, _info) in enumerate(taken)]
         batch.sort(key=lambda item: item[:3])
+        before = self.last_input
         for *_, topic, msg in batch:
             self.on_input(topic, msg)
         if batch:
             self.batch_done()
+        if self.last_input != before:       # idle counts from when the batch was handled
+            self.last_input = time.monotonic()
 
     def batch_done(self) -> None:
         """Hook: a batch of inputs went through :meth:`on_input` (a subclass may defer work
@@ -353,6 +356,9 @@ class TrackerNode(NmtNode):
             self.status.interpolated += len(result.samples) - 1
             self.status.event(WARN, result.gap)
         self.feed(topic, result.samples, stamp_ns, received)
+        # idle time counts from when the input was handled, not from its arrival: a long
+        # computation (an estimator's re-initialisation) is not a silent input
+        self.last_input = time.monotonic()
 
     def on_status(self, msg: DiagnosticArray) -> None:
         self.take_inputs()           # what was sent before an announcement counts first
