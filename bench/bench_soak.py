@@ -18,10 +18,11 @@ The bag's observation topics are looped end to end with shifted stamps
 - latency p99 per minute from the recording (the recorder's receive time of the estimate -
   that of the observation with the same stamp; only minutes that have estimates).
 
-With the shipped reference jump the trackers estimate the first copy's push-off and then, by
-design of the current Stage 1 (tracking ends in flight), only take their inputs; the sustained
-load is then the observation streams, /nmt/status and the trackers' input paths. A routine
-bag (``--bag``) loads the whole graph. Say what else ran on the machine when quoting figures.
+The default bag is the shipped 0.25 s reference jump, so a short run is quick; the
+continuous estimator tracks every copy (push-off, flight and the seam to the next copy, where
+it may lose control and re-initialise, reported). ``--bag bags/routine`` (stance, jumps,
+flight, landings, a drop jump) is the realistic load. Say what else ran on the machine when
+quoting figures.
 """
 from __future__ import annotations
 

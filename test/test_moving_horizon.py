@@ -29,6 +29,7 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
 from nmt_ros.tracking.moving_horizon.point_functions import PointMap, collocation_function
 from nmt_ros.tracking.moving_horizon.residuals import NB, NX
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+from nmt_ros.tracking.moving_horizon.window import revert_toward_zero
 
 RNG = np.random.default_rng(7)
 
@@ -118,6 +119,21 @@ def test_diffusion_adds_process_noise_to_the_covariance():
     assert np.allclose(np.linalg.inv(H3), np.linalg.inv(H) + E @ np.diag([0.5, 0.1]) @ E.T,
                        rtol=1e-9)
     assert np.allclose(np.linalg.solve(H3, g3), mean, rtol=1e-9)
+
+
+def test_reversion_scales_the_mean_and_covariance_of_the_reverting_variables():
+    """p' = phi p on the last two variables (a Gauss-Markov parameter's decay toward zero):
+    the prior's mean becomes diag(1, .., phi) mean and its covariance S P S (S = that
+    diagonal), checked in covariance form against the information form's result."""
+    J = RNG.normal(size=(20, 6))
+    H, g, lin = J.T @ J, RNG.normal(size=6), RNG.normal(size=6)
+    mean, P = lin + np.linalg.solve(H, g), np.linalg.inv(H)
+    phi = np.array([0.8, 0.3])
+    H2, g2, lin2 = revert_toward_zero(H, g, lin, 4, phi)
+    S = np.diag([1, 1, 1, 1, *phi])
+    assert np.allclose(lin2 + np.linalg.solve(H2, g2), S @ mean, rtol=1e-9)
+    assert np.allclose(np.linalg.inv(H2), S @ P @ S, rtol=1e-9)
+    assert np.array_equal(lin2[:4], lin[:4])
 
 
 # ----------------------------------------------------------------------------- synthetic truth

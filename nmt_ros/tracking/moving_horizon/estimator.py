@@ -471,6 +471,7 @@ class MovingHorizonEstimator:
         w = SlidingWindow(self.grid, first, C, plate, self.kernel, self.plate_drift, capacity)
         w.add_samples((ta[sel_a], ya[sel_a]), (tw[sel_w], yw[sel_w]))
         w.start_prior(self.plate_sd)
+        w.plate_reversion_s = np.asarray(st.plate_reversion_s, dtype=float)
         if st.arrival_noise_sd is not None:
             noise = np.empty(NV)
             noise[LAYOUT['q']] = np.r_[np.radians([st.arrival_noise_sd[0]] * 4),

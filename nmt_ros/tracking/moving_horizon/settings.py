@@ -84,6 +84,15 @@ class MovingHorizonSettings:
     # as a 66 mm COP offset (foot kept flat, 19 deg off; ankle torque 45 vs 160 N m)
     plate_sd: tuple[float, ...] = (20.0, 20.0, 2.0, 0.005)
     plate_drift_sd: tuple[float, ...] = (2.0, 2.0, 0.05, 0.005)
+    # time constants [s] of a decay toward zero (first-order Gauss-Markov; 0: a random walk).
+    # The COP offset is unobservable in stance (it reads like the moment), so as a random walk
+    # its prior SD grew to ~3 cm over 40 s of standing and a push-off moved it by 2.5-4.9 cm,
+    # where it stayed for the next 10-20 s (the estimated moment 14-30 N m off). At 2 s its
+    # stationary SD is 5 mm. Measured (bench/bench_estimator_seeds.py, seeds 1-6, 60 s):
+    # torques all phases 5.6 / 3.3 / 5.0 -> 4.2 / 2.7 / 4.8 % of peak (quiet stance
+    # 4.2 / 2.5 / 3.6 -> 2.3 / 1.5 / 3.1), re-initialisations 19.2 -> 17.5 a minute, muscles
+    # 8.1 -> 7.8 % F0 (flight 11.1 -> 13.3); at 1 s about the same (ankle 4.4)
+    plate_reversion_s: tuple[float, ...] = (0.0, 0.0, 0.0, 2.0)
     # process noise on the arrival state (the control points the prior covers), per sqrt(s):
     # angles [deg], positions [m], activations, wrench [N] (None: off). It keeps the prior
     # from growing overconfident in what the window's own data can tell

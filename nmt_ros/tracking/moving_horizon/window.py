@@ -90,6 +90,8 @@ class SlidingWindow:
         self.wrench = Samples.empty(3)
         self.prior: Prior | None = None
         self.arrival_noise: np.ndarray | None = None   # variance per second [NV]
+        # plate parameters' reversion time constants [s] (0: a random walk) [NX]
+        self.plate_reversion_s = np.zeros(NX)
         # kept linearisations, segment k at position k - base (contiguous for the window;
         # compacted when the buffer's end is reached)
         n = NB + NX
@@ -389,6 +391,11 @@ class SlidingWindow:
             g[k:k + w] += prior[2][:w]
             g[n:] += prior[2][w:]
         Hp, gp = marginalize(H, g, m * NV)
+        lin = np.concatenate([self.C[m:m + 3].ravel(), self.plate])
+        reverting = self.plate_reversion_s > 0
+        if reverting.any():       # Gauss-Markov plate parameters: their mean decays to zero
+            Hp, gp, lin = revert_toward_zero(Hp, gp, lin, 3 * NV, np.exp(
+                -m * self.grid.dt / np.where(reverting, self.plate_reversion_s, np.inf)))
         Hp, gp = diffuse(Hp, gp, 3 * NV + np.arange(NX), self.plate_drift * m * self.grid.dt)
         if self.arrival_noise is not None:   # the arrival state's own process noise
             Hp, gp = diffuse(Hp, gp, np.arange(3 * NV), np.tile(self.arrival_noise, 3)
@@ -398,7 +405,6 @@ class SlidingWindow:
             for k in range(3):
                 E[k * NV + 4, 0] = E[k * NV + 5, 1] = 1.0
             Hp, gp = diffuse_along(Hp, gp, E, np.full(2, translation_sd ** 2))
-        lin = np.concatenate([self.C[m:m + 3].ravel(), self.plate])
         self.prior = Prior(first=segment, n_ctrl=3, H=Hp, g=gp, lin=lin)
         self.lin_seg[segs[:m] - self.base] = -1
         self.C = self.C[m:]
@@ -410,3 +416,16 @@ class SlidingWindow:
     def values(self, t: np.ndarray, orders: int = 3) -> np.ndarray:
         """Spline values [P, orders, NV] at instants inside the window."""
         return evaluate(self.C, self.first, self.grid, np.asarray(t, dtype=float), orders)
+
+
+def revert_toward_zero(H: np.ndarray, g: np.ndarray, lin: np.ndarray, first: int,
+                       phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The prior (H, g) linearised at ``lin`` (variables ``first`` + k of it for k < len(phi))
+    after the deterministic part of a first-order Gauss-Markov process, p' = phi p (each
+    parameter's mean decays toward zero by phi = exp(-dt / tau)): in p', H' = S H S and
+    g' = S g with S = 1 / phi on those variables, linearised at phi lin. The process noise is
+    added separately (``diffuse``). Returns (H', g', lin')."""
+    scale = np.ones(H.shape[0])
+    idx = first + np.arange(phi.size)
+    scale[idx] = 1.0 / phi
+    return H * scale[:, None] * scale[None, :], g * scale, lin / scale
