@@ -1,9 +1,9 @@
 """The moving-horizon estimator (live Stage 1) on fresh noise realisations of a routine: the
 shipped routine's truth observed again with the routine generator's noise and bias under other
 seeds (``study.routine_observations``), each realisation tracked offline (= live) and scored
-by phase against the truth, with the height of every jump from the tracked motion
-(``study.recording_evaluation.jump_table``, as ``nmt demo`` reports it); per seed, then the
-mean and the worst over the seeds.
+by phase against the truth (refined and low-latency), with the height of every jump from the
+tracked motion (``study.recording_evaluation.jump_table``, as ``nmt demo`` reports it); per
+seed, then the mean and the worst over the seeds.
 
     python bench/bench_estimator_seeds.py [--bag bags/routine] [--seeds 1,2,3,4]
                                           [--duration 60] [--set key=value ...] [--json F]
@@ -85,6 +85,7 @@ def main() -> int:
                        obs.wrench[sw], settings)
         ref = phase_scores(model, scored, run.refined.t, run.refined.tau,
                            run.refined.muscles['f'])
+        low = phase_scores(model, scored, run.low_latency.t, run.low_latency.tau)
         r = run.refined
         lift = takeoffs(r.t, r.s[:, 1], OBSERVATION_NOISE.force_sd_bw * model.p.body_weight)
         jumps = jump_table(model, scored, r.t, r.q, r.qd, lift)
@@ -93,23 +94,30 @@ def main() -> int:
                'jumps_tracked': jumps['tracked'], 'jumps': len(jumps['jumps']),
                'jump_error_pct': jumps['mean_abs_error_pct'],
                **{ph: [*ref[ph]['torque_rms_pct_peak'].values(),
-                       ref[ph]['muscle_force_rms_pct_f0']['mean']] for ph in PHASES}}
+                       ref[ph]['muscle_force_rms_pct_f0']['mean']] for ph in PHASES},
+               **{f'low_latency {ph}': list(low[ph]['torque_rms_pct_peak'].values())
+                  for ph in PHASES}}
         rows.append(row)
         print(f"seed {seed}: {run.restarts} re-initialisations, coverage "
               f"{row['coverage']:.3f}; torques ankle/knee/hip % of peak, muscles % F0: " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[ph])}" for ph in PHASES) +
               f"; jumps {row['jumps_tracked']} of {row['jumps']} tracked, mean |height error| "
-              f"{row['jump_error_pct']:.1f} %", flush=True)
+              f"{row['jump_error_pct']:.1f} %; low-latency torques " +
+              '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[f'low_latency {ph}'])}"
+                        for ph in PHASES), flush=True)
     summary = {'settings': overrides, 'seeds': rows}
     for name, fn in (('mean', np.mean), ('worst', np.max)):
         summary[name] = {'restarts': float(fn([r['restarts'] for r in rows])),
                          'jump_error_pct': float(fn([r['jump_error_pct'] for r in rows])),
                          **{ph: np.round(fn([r[ph] for r in rows], axis=0), 2).tolist()
-                            for ph in PHASES}}
+                            for ph in [*PHASES, *(f'low_latency {p}' for p in PHASES)]}}
         print(f"{name}: {summary[name]['restarts']:g} re-initialisations; " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in summary[name][ph])}"
                         for ph in PHASES) +
-              f"; mean |jump height error| {summary[name]['jump_error_pct']:.1f} %")
+              f"; mean |jump height error| {summary[name]['jump_error_pct']:.1f} %; low-latency "
+              "torques " + '; '.join(
+                  f"{ph} {' / '.join(f'{v:.1f}' for v in summary[name][f'low_latency {ph}'])}"
+                  for ph in PHASES))
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=1))
     return 0
