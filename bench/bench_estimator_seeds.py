@@ -66,6 +66,9 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=60.0, help='seconds of the routine [s]')
     ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
                     help='MovingHorizonSettings overrides (Python literals)')
+    ap.add_argument('--without-angle-bias', action='store_true',
+                    help="remove the generator's smooth angle bias (skin motion) from the "
+                    'observed angles, keeping their noise (to see what the bias causes)')
     ap.add_argument('--json', default=None, help='write the figures here')
     args = ap.parse_args()
     overrides = {}
@@ -78,8 +81,10 @@ def main() -> int:
     scored = truth.between(0.0, args.duration)
     rows = []
     for seed in (int(x) for x in args.seeds.split(',')):
-        obs, _ = make_routine_observations(fine, RoutineObservationSettings(seed=seed),
-                                           model.p.body_weight)
+        obs, parts = make_routine_observations(fine, RoutineObservationSettings(seed=seed),
+                                               model.p.body_weight)
+        if args.without_angle_bias:
+            obs = replace(obs, angles=obs.angles - parts['smooth_angle_bias'])
         sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
         run = estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw],
                        obs.wrench[sw], settings)
