@@ -289,27 +289,34 @@ def _in_stamp_order(sa, sw, n_a):
                   + [(sw[i], 1, i) for i in range(n_w)]), n_w
 
 
+def _publish_in_order(events, obs, pub_a, pub_w, executor=None):
+    """Publish ``events`` ((stamp, 0 = angle | 1 = wrench, index), ``_in_stamp_order``) of
+    ``obs``; with ``executor``, spin it once after each message."""
+    from msg_adapters.joint_state import to_joint_state
+    from msg_adapters.planar import to_planar_wrench
+
+    for stamp, kind, i in events:
+        if kind == 0:
+            pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
+                                         obs.angles[i]))
+        else:
+            pub_w.publish(to_planar_wrench(stamp, 'foot_com', obs.wrench[i]))
+        if executor is not None:
+            executor.spin_once(timeout_sec=0)
+
+
 @pytest.mark.slow
 def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
     """start_s (a support the plates do not measure before it, e.g. a drop jump's box): the
     samples before it are counted and said once on /nmt/status, not used; the estimates
     start at the first force-plate instant from start_s and cover every one after it."""
-    from msg_adapters.joint_state import to_joint_state
-    from msg_adapters.planar import to_planar_wrench
-
     obs, sa, sw = _observations()
     start_s = 0.05
     n_a = 30                                      # 0.24 s of the reference jump
     events, n_w = _in_stamp_order(sa, sw, n_a)
     with _mhe_node(ros_context, 'probe_start', start_s=start_s) as (
             skel, status, outputs, pub_a, pub_w, executor):
-        for stamp, kind, i in events:
-            if kind == 0:
-                pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
-                                             obs.angles[i]))
-            else:
-                pub_w.publish(to_planar_wrench(stamp, 'foot_com', obs.wrench[i]))
-            executor.spin_once(timeout_sec=0)
+        _publish_in_order(events, obs, pub_a, pub_w, executor)
         assert spin_until(executor, lambda: skel.status.state == 'finished', 20.0), \
             skel.status.reports()[0]
         published = skel.status.published[TORQUES]
@@ -396,27 +403,16 @@ def test_a_long_update_is_not_mistaken_for_silent_input(ros_context):
     a busy machine) inside that take is not silence: the trial goes on. (Before the fix idle
     time counted from the batch's arrival: a 60 min soak ended its trial on "no input for
     1.03 s" after a re-initialisation while the force plate streamed on.)"""
-    from msg_adapters.joint_state import to_joint_state
-    from msg_adapters.planar import to_planar_wrench
-
     obs, sa, sw = _observations()
     events, _ = _in_stamp_order(sa, sw, 12)
     idle_s = 0.3
     with _mhe_node(ros_context, 'probe_idle', idle_flush_s=idle_s) as (
             skel, _status, _outputs, pub_a, pub_w, executor):
-        def publish(part):
-            for stamp, kind, i in part:
-                if kind == 0:
-                    pub_a.publish(to_joint_state(stamp, ['foot', 'shank', 'thigh', 'hat'],
-                                                 obs.angles[i]))
-                else:
-                    pub_w.publish(to_planar_wrench(stamp, 'foot_com', obs.wrench[i]))
-
         def taken():
             return sum(skel.status.received.values())
 
         half = len(events) // 2
-        publish(events[:half])
+        _publish_in_order(events[:half], obs, pub_a, pub_w)
         assert spin_until(executor, lambda: taken() == half and skel.tracking, 10.0)
         poll = skel.mhe.poll
 
@@ -425,7 +421,7 @@ def test_a_long_update_is_not_mistaken_for_silent_input(ros_context):
             return poll()
 
         skel.mhe.poll = slow_poll
-        publish(events[half:])
+        _publish_in_order(events[half:], obs, pub_a, pub_w)
         time.sleep(0.2)                           # delivered to the node's readers
         skel.watchdog()                           # takes them; the update takes 0.6 s
         assert taken() == len(events)
