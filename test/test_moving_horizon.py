@@ -271,6 +271,43 @@ def test_occlusions_nan_samples_and_spikes_are_bridged(stance, model):
     assert (err < np.array([6.0, 9.0, 9.0])).all(), err
 
 
+def _failing_once(method, at_call: int):
+    """``method`` raising LinAlgError at its ``at_call``-th call (1-based), else itself."""
+    calls = [0]
+
+    def wrapped(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == at_call:
+            raise np.linalg.LinAlgError('not positive definite (injected)')
+        return method(*args, **kwargs)
+    return wrapped
+
+
+@pytest.mark.parametrize('method, at_call, said', [
+    ('drop_before', 5, 'loss of control: marginalisation failed'),
+    ('solve', 1, 'initialisation failed: singular step'),
+])
+def test_a_singular_marginalisation_or_start_is_reported_and_tracking_goes_on(
+        stance, model, monkeypatch, method, at_call, said):
+    """Linear algebra that fails outside an update's step (the arrival cost's
+    factorisation, the start's solve) is a reported loss of control, not an exception out of
+    the estimator (a live node would die on it): the next update starts again and every
+    later instant is estimated."""
+    from nmt_ros.tracking.moving_horizon.window import SlidingWindow
+    held, obs, _ = stance
+    monkeypatch.setattr(SlidingWindow, method,
+                        _failing_once(getattr(SlidingWindow, method), at_call))
+    run = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench)
+    errors = [e for e in run.events if e.level == 'error']
+    assert len(errors) == 1 and errors[0].message.startswith(said), errors
+    ref = run.refined
+    assert ref.t[-1] == obs.t_wrench[-1]
+    assert np.array_equal(ref.t, obs.t_wrench[obs.t_wrench >= ref.t[0]])
+    later = ref.t >= errors[0].t + 0.3
+    err = np.abs(ref.tau[later] - held.tau[0]).mean(0)
+    assert (err < np.array([4.0, 6.0, 6.0])).all(), err
+
+
 def _fed_in_lumps(model, obs, poll_now,
                   settings: MovingHorizonSettings | None = None,
                   ) -> tuple[MovingHorizonEstimator, list]:

@@ -289,7 +289,17 @@ class MovingHorizonEstimator:
                 return []
         blocks = self._emit(t_u)
         if self.window is not None:
-            self._slide(t_u)
+            try:
+                self._slide(t_u)
+            except np.linalg.LinAlgError as exc:
+                # the arrival cost cannot be formed (the marginalised part's normal equations
+                # not positive definite): lose the window, say so, start again at the next
+                # update
+                self.events.append(EstimatorEvent(
+                    'error', t_u, f'loss of control: marginalisation failed ({exc}); '
+                    're-initialising at the next update'))
+                self.window = None
+                self.restarts += 1
         return blocks
 
     def _gauss_newton(self, t_u: float, segments: np.ndarray, check: bool,
@@ -482,12 +492,25 @@ class MovingHorizonEstimator:
         segments = np.arange(w.first, w.last + 1)
         per_stage = max(1, st.start_iterations // (len(st.start_dynamics_sd) + 1))
         damping = st.damping
-        for sd in st.start_dynamics_sd:
-            w.lin_seg[:] = -1
-            damping = w.solve(segments, per_stage, damping,
-                              dynamics_scale=sd / st.dynamics_sd)
-        w.lin_seg[:] = -1
-        w.solve(segments, st.start_iterations - per_stage * len(st.start_dynamics_sd), damping)
+        try:
+            with np.errstate(invalid='ignore', over='ignore', divide='ignore'):
+                for sd in st.start_dynamics_sd:
+                    w.lin_seg[:] = -1
+                    damping = w.solve(segments, per_stage, damping,
+                                      dynamics_scale=sd / st.dynamics_sd)
+                w.lin_seg[:] = -1
+                w.solve(segments, st.start_iterations - per_stage * len(st.start_dynamics_sd),
+                        damping)
+        except np.linalg.LinAlgError as exc:
+            failed = f'singular step ({exc})'
+        else:
+            failed = (None if np.isfinite(w.C).all() and np.isfinite(w.plate).all()
+                      else 'non-finite estimate')
+        if failed is not None:     # no window: the next update tries again on newer data
+            self.events.append(EstimatorEvent('error', t_u, f'initialisation failed: '
+                                              f'{failed}; trying again at the next update'))
+            self.window = None
+            return False
         # tracking starts undamped: the start's damping reflects its far-from-quadratic
         # first iterations, and carried over it would keep the first updates from following
         # the new data
