@@ -295,6 +295,9 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
         assert (est.stamp_ns[0] - epoch) * 1e-9 == pytest.approx(0.79)
     facts = json.loads(bag_info(out / 'estimates').custom_data['nmt.track'])
     assert facts['start_in_flight'] and facts['rate_hz'] == 100.0
+    # the estimator's ground-wrench smoothness at a 100 Hz plate: 0.4 x its Nyquist frequency
+    assert facts['mhe_wrench_cutoff_hz'] == 20.0
+    assert 'ground wrench smoothed at 20 Hz (cut-off [40.0] Hz lowered to 20 Hz' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing):
     # measured 1.6 / 1.6 / 2.7 / 1.3 deg RMS and 9.4 % BW RMS of vertical force in contact

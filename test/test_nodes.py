@@ -651,3 +651,31 @@ def test_shipped_config_equals_the_declared_defaults(node, ros_context, tmp_path
     finally:
         instance.on_shutdown(True)
         instance.destroy_node()
+
+
+def test_the_offline_estimator_runs_with_the_settings_the_node_reported(ros_context):
+    """Live = batch needs the batch to rebuild the node's estimator settings from what the
+    node said on /nmt/status: non-default estimator parameters (wrench_cutoff_hz included)
+    go through the status message and its adapter and come back as the node's
+    MovingHorizonSettings."""
+    from msg_adapters.diagnostics import from_diagnostic_array, to_diagnostic_array
+    from nmt_ros.nodes.node_base import to_records
+    from nmt_ros.nodes.skeletal_tracker import SkeletalTrackerNode
+    from nmt_ros.study.recording_evaluation import mhe_settings_from_status
+    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+
+    given = {'lag_s': 0.06, 'window_s': 0.15, 'update_rate_hz': 30.0, 'iterations': 2,
+             'wrench_cutoff_hz': 20.0, 'angle_rate_hz': 100.0, 'wrench_rate_hz': 1000.0}
+    node = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
+        estimator='mhe', **given))
+    try:
+        assert node.mhe_settings != MovingHorizonSettings()
+        message = to_diagnostic_array(0, to_records(node.status.reports()))
+        _, records = from_diagnostic_array(message)
+        values = next(r.values for r in records if ':' not in r.name)
+        rebuilt = mhe_settings_from_status(values)
+        assert rebuilt == node.mhe_settings
+        assert rebuilt.wrench_cutoff_hz == 20.0 and rebuilt.iterations == 2
+    finally:
+        node.on_shutdown(True)
+        node.destroy_node()

@@ -95,6 +95,14 @@ def test_track_works_on_a_bag_without_truth(tmp_path):
     assert not (out / 'metrics.json').exists()
 
 
+def test_track_refuses_a_wrench_cutoff_that_is_not_positive(tmp_path):
+    proc = nmt('track', str(BAG), '--out', str(tmp_path / 'o'), '--stage1', 'mhe',
+               '--wrench-cutoff', '-5')
+    assert proc.returncode == 2
+    assert 'nmt track: error: the wrench cut-off -5.0 Hz must be positive' in proc.stderr
+    assert 'Traceback' not in proc.stderr
+
+
 def test_track_reports_a_bag_without_observations(tmp_path):
     proc = nmt('track', str(BAG / 'does_not_exist'), '--out', str(tmp_path / 'o'))
     assert proc.returncode != 0

@@ -36,6 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='start tracking at S s of the recording (default: the step-off '
                         'after an unmeasured support when one is detected, else the first '
                         'sample)')
+    parser.add_argument('--wrench-cutoff', type=float, default=None, metavar='HZ',
+                        help="moving-horizon estimator: the estimated ground wrench's "
+                        'smoothness, the cut-off of its smoothing-spline prior (default 40 Hz, '
+                        "at most 0.4 x the force plate's Nyquist frequency; lower it for "
+                        'noisy lab plates); the live node\'s wrench_cutoff_hz')
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -56,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
                             figures=not args.no_figures, say=_say, stage1=args.stage1,
-                            stage2_k_r=args.stage2_kr, start_s=args.start)
+                            stage2_k_r=args.stage2_kr, start_s=args.start,
+                            wrench_cutoff_hz=args.wrench_cutoff)
     except ValueError as err:
         print(f'nmt track: error: {err}', file=sys.stderr)
         return 2

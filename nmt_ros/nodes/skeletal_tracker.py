@@ -97,6 +97,11 @@ class SkeletalTrackerNode(TrackerNode):
                                 'of data (CPU vs latency)', low=1.0, high=2000.0)
         self.iterations = p('iterations', d.iterations, 'mhe: Gauss-Newton iterations per '
                             'update', low=1, high=20)
+        self.wrench_cutoff_hz = p('wrench_cutoff_hz', d.wrench_cutoff_hz, 'mhe: smoothness of '
+                                  'the estimated ground wrench, the cut-off of its '
+                                  'smoothing-spline prior [Hz] (at most 0.4 x the force '
+                                  "plate's Nyquist frequency; lower it for noisy lab plates)",
+                                  low=0.1, high=50000.0)
         self.slow_backlog_s = p('slow_backlog_s', d.slow_backlog_s, 'mhe: with more data '
                                 'than this waiting, update every other period until caught up '
                                 '(less latency after a burst; the estimates then depend on the '
@@ -161,11 +166,13 @@ class SkeletalTrackerNode(TrackerNode):
                                     max_backlog_s=self.max_backlog_s,
                                     update_rate_hz=self.update_rate_hz,
                                     iterations=self.iterations,
+                                    wrench_cutoff_hz=self.wrench_cutoff_hz,
                                     angle_rate_hz=self.angle_rate_hz,
                                     wrench_rate_hz=self.wrench_rate_hz)
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
+            'wrench_cutoff_hz': self.wrench_cutoff_hz,
             'slow_backlog_s': self.slow_backlog_s, 'max_backlog_s': self.max_backlog_s,
             'side_rate_hz': self.side_rate_hz,
             'lookahead_s': self.lookahead_s,

@@ -34,7 +34,7 @@ from nmt_ros.study.observation_fit import format_fit, id_agreement, observation_
 from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
-from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
+from nmt_ros.tracking.conditioning import cutoff_for_rate, nominal_rate, sample_rate
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
@@ -60,11 +60,14 @@ def _rate(t: np.ndarray, what: str, bag: Path) -> float:
 def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | None = None,
               figures: bool = True, say: Callable[[str], None] = _quiet,
               stage1: str = 'auto', stage2_k_r: float | None = None,
-              start_s: float | None = None) -> dict | None:
+              start_s: float | None = None,
+              wrench_cutoff_hz: float | None = None) -> dict | None:
     """Run the NMT on ``bag``, write the outputs under ``out``; returns the metrics (None
     when the bag has no truth). ``window``: Stage 2 window length H [s] (windowed mode);
     ``stage2_k_r``: Stage 2 effort weight kR (None: stage2.yaml's); ``start_s``: start
-    tracking there (recording time, s; None: ``plan_start``'s choice); ``say``: progress."""
+    tracking there (recording time, s; None: ``plan_start``'s choice); ``wrench_cutoff_hz``:
+    the moving-horizon estimator's ground-wrench smoothness [Hz] (None: its default);
+    ``say``: progress."""
     bag = Path(bag)
     model = load_subject_model(bag)
     subject = subject_file(bag)
@@ -108,6 +111,14 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
             f'(Table 1: {skt.weights[0]:g} on the ground)')
     # the moving-horizon estimator at the bag's rates, as the live node gets them
     mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w)
+    if wrench_cutoff_hz is not None:
+        if not (np.isfinite(wrench_cutoff_hz) and wrench_cutoff_hz > 0):
+            raise ValueError(f'the wrench cut-off {wrench_cutoff_hz} Hz must be positive')
+        mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
+    cutoff, lowered = cutoff_for_rate(mhe.wrench_cutoff_hz, rate_w)
+    if stage1 in ('mhe', 'auto', 'optimal_muscle'):   # (they fall back on it)
+        say(f'moving-horizon estimator: ground wrench smoothed at {cutoff:g} Hz'
+            + (f' ({lowered})' if lowered else ''))
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
                                           window_length_s=window, stage2_k_r=stage2_k_r,
                                           rate_hz=rate_w, skt=skt, mhe=mhe),
@@ -117,6 +128,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     estimates = run.estimates().shifted(start.t_s)       # back on the recording's time
     facts = {'nmt.track': {'start_s': start.t_s, 'start_reason': start.reason,
                            'start_in_flight': start.in_flight, 'notes': start.notes,
+                           'mhe_wrench_cutoff_hz': cutoff,
                            'conditioning': list(run.cond.notes), 'rate_hz': rate_w,
                            'model_mass_kg': model.p.total_mass,
                            'stage1_status': run.skt.status,

@@ -127,13 +127,25 @@ def _columns(series: Any, names: tuple[str, ...], field: str) -> np.ndarray:
     return np.column_stack([series.column(n, field) for n in names])
 
 
+def mhe_settings_from_status(values: Mapping[str, Any]) -> Any:
+    """The skeletal tracker's estimator settings (``MovingHorizonSettings``) from the
+    'setting.*' values of its /nmt/status (what the node ran with; defaults where absent):
+    the offline estimator then makes the estimates the node published."""
+    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+
+    d = MovingHorizonSettings()
+    floats = ('lag_s', 'window_s', 'update_rate_hz', 'wrench_cutoff_hz', 'angle_rate_hz',
+              'wrench_rate_hz')
+    return d.with_(iterations=int(_float(values, 'setting.iterations', d.iterations)),
+                   **{k: _float(values, f'setting.{k}', getattr(d, k)) for k in floats})
+
+
 def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> dict:
     """Batch Stage 1 and windowed Stage 2 on the source observations, graph settings."""
     from nmt_ros.io.trial_bag import read_observations
     from nmt_ros.model.jumper import default_model
     from nmt_ros.tracking.conditioning import ConditioningSettings, condition
     from nmt_ros.tracking.moving_horizon.estimator import estimate
-    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
     from nmt_ros.tracking.skeletal_tracker import SKTSettings
     from nmt_ros.tracking.stage2 import NeuromuscularTracker, load_stage2_settings
     from nmt_ros.tracking.streaming import initial_activations, track_stage1
@@ -149,15 +161,8 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
                               force_cutoff_hz=_float(sk, 'setting.force_cutoff_hz', 50.0))
     if sk.get('setting.estimator', 'skt') == 'mhe':
         # the same estimator object the node runs, fed the whole recording (offline = live)
-        d = MovingHorizonSettings()
-        mhe = d.with_(lag_s=_float(sk, 'setting.lag_s', d.lag_s),
-                      window_s=_float(sk, 'setting.window_s', d.window_s),
-                      update_rate_hz=_float(sk, 'setting.update_rate_hz', d.update_rate_hz),
-                      iterations=int(_float(sk, 'setting.iterations', d.iterations)),
-                      angle_rate_hz=_float(sk, 'setting.angle_rate_hz', d.angle_rate_hz),
-                      wrench_rate_hz=_float(sk, 'setting.wrench_rate_hz', d.wrench_rate_hz))
         res = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
-                       mhe).refined
+                       mhe_settings_from_status(sk)).refined
     else:
         skt = SKTSettings()
         skt = skt.with_(substeps=int(_float(sk, 'setting.substeps', skt.substeps)),
