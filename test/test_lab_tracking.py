@@ -300,7 +300,7 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     assert 'ground wrench smoothed at 20 Hz (cut-off [40.0] Hz lowered to 20 Hz' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing):
-    # measured 1.6 / 1.6 / 2.7 / 1.3 deg RMS and 9.4 % BW RMS of vertical force in contact
+    # measured 1.9 / 1.7 / 2.6 / 1.3 deg RMS and 10.1 % BW RMS of vertical force in contact
     assert 'Stage 1 is the moving-horizon estimator' in proc.stdout
     est_a = read_arrays(out / 'estimates', '/nmt/skeletal/segment_angles')
     est_w = read_arrays(out / 'estimates', '/nmt/skeletal/ground_wrench')
