@@ -112,9 +112,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     # the moving-horizon estimator at the bag's rates, as the live node gets them
     mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w)
     if wrench_cutoff_hz is not None:
-        if not (np.isfinite(wrench_cutoff_hz) and wrench_cutoff_hz > 0):
-            raise ValueError(f'the wrench cut-off {wrench_cutoff_hz} Hz must be positive')
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
+    mhe.validate()                 # a bad option is refused before any work
     cutoff, lowered = cutoff_for_rate(mhe.wrench_cutoff_hz, rate_w)
     if stage1 in ('mhe', 'auto', 'optimal_muscle'):   # (they fall back on it)
         say(f'moving-horizon estimator: ground wrench smoothed at {cutoff:g} Hz'

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from msg_adapters.cdr_header import header_stamps_ns
 from nmt_ros import topics
 from nmt_ros.io.bags import bag_info, read_arrays, read_bag, read_raw
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES
+
+if TYPE_CHECKING:
+    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
 DATA_TOPICS = topics.OBSERVATIONS + topics.SKELETAL_OUTPUTS + topics.MUSCLE_OUTPUTS
 NODES = ('observation_publisher', 'skeletal_tracker', 'muscle_tracker', 'recorder')
@@ -127,7 +130,7 @@ def _columns(series: Any, names: tuple[str, ...], field: str) -> np.ndarray:
     return np.column_stack([series.column(n, field) for n in names])
 
 
-def mhe_settings_from_status(values: Mapping[str, Any]) -> Any:
+def mhe_settings_from_status(values: Mapping[str, Any]) -> MovingHorizonSettings:
     """The skeletal tracker's estimator settings (``MovingHorizonSettings``) from the
     'setting.*' values of its /nmt/status (what the node ran with; defaults where absent):
     the offline estimator then makes the estimates the node published."""

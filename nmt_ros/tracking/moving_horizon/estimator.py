@@ -187,12 +187,10 @@ class MovingHorizonEstimator:
         first = self.grid.t_ref + st.start_window_s
         k = int(np.floor((lo - first) / self.period + 1e-9))
         t_new = first + k * self.period
-        self.events.append(EstimatorEvent(
-            'error', self.next_update, f'fell behind the data by {behind:.2f} s (more than '
-            f'max_backlog_s = {st.max_backlog_s:g} s): skipping to t = {t_new:.4f} s and '
-            're-initialising there', {'behind_s': float(behind)}))
-        self.window = None
-        self.restarts += 1
+        self._drop_window(self.next_update, f'fell behind the data by {behind:.2f} s (more '
+                          f'than max_backlog_s = {st.max_backlog_s:g} s): skipping to t = '
+                          f'{t_new:.4f} s and re-initialising there',
+                          {'behind_s': float(behind)})
         self.next_update = t_new
 
     def _stride(self, t_u: float) -> int:
@@ -281,10 +279,8 @@ class MovingHorizonEstimator:
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
-            self.events.append(EstimatorEvent('error', t_u, f'loss of control: {why}; '
-                                              're-initialising from the newest observations'))
-            self.window = None
-            self.restarts += 1
+            self._drop_window(t_u, f'loss of control: {why}; re-initialising from the newest '
+                              'observations')
             if not self._start(t_u):
                 return []
         blocks = self._emit(t_u)
@@ -293,14 +289,17 @@ class MovingHorizonEstimator:
                 self._slide(t_u)
             except np.linalg.LinAlgError as exc:
                 # the arrival cost cannot be formed (the marginalised part's normal equations
-                # not positive definite): lose the window, say so, start again at the next
-                # update
-                self.events.append(EstimatorEvent(
-                    'error', t_u, f'loss of control: marginalisation failed ({exc}); '
-                    're-initialising at the next update'))
-                self.window = None
-                self.restarts += 1
+                # not positive definite): the next update starts again
+                self._drop_window(t_u, f'loss of control: marginalisation failed ({exc}); '
+                                  're-initialising at the next update')
         return blocks
+
+    def _drop_window(self, t: float, message: str, values: dict | None = None) -> None:
+        """A loss of control (or a skip): say it (an error at data time t [s]), drop the
+        window and count a re-initialisation."""
+        self.events.append(EstimatorEvent('error', t, message, values or {}))
+        self.window = None
+        self.restarts += 1
 
     def _gauss_newton(self, t_u: float, segments: np.ndarray, check: bool,
                       iterations: int | None = None) -> str | None:
@@ -416,12 +415,9 @@ class MovingHorizonEstimator:
         why = self._implausible(both)
         if why is not None:
             # never published: the instants are reported as lost and the window restarts
-            self.events.append(EstimatorEvent(
-                'error', t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
-                're-initialising from the newest observations',
-                {'from_s': float(both.t[0]), 'to_s': float(both.t[-1])}))
-            self.window = None
-            self.restarts += 1
+            self._drop_window(t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
+                              're-initialising from the newest observations',
+                              {'from_s': float(both.t[0]), 'to_s': float(both.t[-1])})
             if not final:
                 self._start(t_u)
             return []

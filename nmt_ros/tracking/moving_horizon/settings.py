@@ -173,3 +173,5 @@ class MovingHorizonSettings:
                              f'({self.lag_s + 1.0 / self.update_rate_hz:.4f} s)')
         if self.knot_rate_hz < self.update_rate_hz:
             raise ValueError('knot_rate_hz must be at least update_rate_hz')
+        if not (np.isfinite(self.wrench_cutoff_hz) and self.wrench_cutoff_hz > 0):
+            raise ValueError(f'the wrench cut-off {self.wrench_cutoff_hz} Hz must be positive')
