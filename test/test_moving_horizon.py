@@ -29,7 +29,7 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
 from nmt_ros.tracking.moving_horizon.point_functions import PointMap, collocation_function
 from nmt_ros.tracking.moving_horizon.residuals import NB, NX
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
-from nmt_ros.tracking.moving_horizon.window import revert_toward_zero
+from nmt_ros.tracking.moving_horizon.window import revert_toward_zero, within_joint_range
 
 RNG = np.random.default_rng(7)
 
@@ -119,6 +119,41 @@ def test_diffusion_adds_process_noise_to_the_covariance():
     assert np.allclose(np.linalg.inv(H3), np.linalg.inv(H) + E @ np.diag([0.5, 0.1]) @ E.T,
                        rtol=1e-9)
     assert np.allclose(np.linalg.solve(H3, g3), mean, rtol=1e-9)
+
+
+def test_the_window_never_extrapolates_past_the_joints_passive_range(model):
+    """The ligament torques grow as exp(34 / rad) past the knee's extension limit: a take-off's
+    knee extending at 10 rad/s, extrapolated 25 ms, would reach 10^6-10^12 N m. New control
+    points stop at the limit (or where the last one already is, beyond it); the foot angle
+    and the translations are left as they were. Checked with the model's own joint angles
+    and passive torques."""
+    pas = model.p.passive
+    lo, hi = np.asarray(pas.theta_lower), np.asarray(pas.theta_upper)
+
+    def joints(q: np.ndarray) -> np.ndarray:
+        return np.asarray(model.call(model.joint_angles, q)[0]).ravel()
+
+    def passive(q: np.ndarray) -> np.ndarray:
+        return np.asarray(model.call(model.passive_torques, q, np.zeros(6))[0]).ravel()
+
+    # a posture: foot, shank, thigh, HAT with the knee 0.02 rad short of full extension
+    last = np.array([0.0, 0.1, 0.1 - (hi[1] - 0.02), 0.2, 0.05, 0.2])
+    assert abs(joints(last)[1] - (hi[1] - 0.02)) < 1e-12
+    rate = np.array([-0.2, 6.0, -4.0, 1.0, 0.4, 1.5]) / 120.0       # per knot interval
+    new = within_joint_range(last + rate, last, lo, hi)
+    assert abs(joints(new)[1] - hi[1]) < 1e-12           # the knee stops at its limit
+    assert np.array_equal(new[[0, 4, 5]], (last + rate)[[0, 4, 5]])
+    assert np.allclose(joints(new)[[0, 2]], joints(last + rate)[[0, 2]], atol=1e-12)
+    beyond = last.copy()
+    beyond[2] -= 0.3                                       # already 0.28 rad past the limit
+    new = within_joint_range(beyond + rate, beyond, lo, hi)
+    assert abs(joints(new)[1] - joints(beyond)[1]) < 1e-12
+    inside = np.array([-0.05, 0.2, 0.5, 0.1, 0.0, 1.0])
+    assert np.array_equal(within_joint_range(inside + rate, inside, lo, hi), inside + rate)
+    # at the limit the ligaments' torque is still small (the range a body moves in)
+    edge = np.zeros(6)
+    edge[1:4] = -np.cumsum(hi)
+    assert np.allclose(joints(edge), hi, atol=1e-12) and np.abs(passive(edge)).max() < 20.0
 
 
 def test_reversion_scales_the_mean_and_covariance_of_the_reverting_variables():

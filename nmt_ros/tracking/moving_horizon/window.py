@@ -92,6 +92,9 @@ class SlidingWindow:
         self.arrival_noise: np.ndarray | None = None   # variance per second [NV]
         # plate parameters' reversion time constants [s] (0: a random walk) [NX]
         self.plate_reversion_s = np.zeros(NX)
+        # the joints' passive range [rad] (lower [3], upper [3] of ankle, knee, hip: the
+        # ligament torques' limits) that extrapolated control points do not leave (None: any)
+        self.joint_range: tuple[np.ndarray, np.ndarray] | None = None
         # kept linearisations, segment k at position k - base (contiguous for the window;
         # compacted when the buffer's end is reached)
         n = NB + NX
@@ -147,7 +150,14 @@ class SlidingWindow:
         10 restarts, refined torques 5.3 / 3.3 / 4.8 -> 3.2 / 2.1 / 4.0 % of peak, muscle
         forces 7.7 -> 6.2 % F0; on 20-60 s, 34 -> 17 restarts. Holding q (zero velocity)
         restarted least (3) but left an Eq. 1 residual the activations absorbed (muscle
-        forces 12 % F0)."""
+        forces 12 % F0).
+
+        Nor past a joint's passive range (``joint_range``, ``within_joint_range``): the
+        ligament torques grow as exp(34 rad^-1) past the knee's extension limit, and at a
+        take-off (the knee extending at ~10 rad/s) 25 ms of extrapolation put the newest
+        control points 0.5-0.8 rad beyond it: passive torques of 10^6-10^12 N m in the
+        newest segments' Eq. 1 rows, whose Gauss-Newton step then sent the foot's rate to
+        2000 rad/s (a loss of control 67 ms after lift-off on 3 of 5 jumps of a seed)."""
         add = last_segment - self.last
         if add <= 0:
             return
@@ -166,6 +176,8 @@ class SlidingWindow:
         for _ in range(add):
             new = C[-1].copy()
             new[q] = 2 * C[-1][q] - C[-2][q]
+            if self.joint_range is not None:
+                new[q] = within_joint_range(new[q], C[-1][q], *self.joint_range)
             C.append(new)
         self.C = np.array(C)
 
@@ -416,6 +428,22 @@ class SlidingWindow:
     def values(self, t: np.ndarray, orders: int = 3) -> np.ndarray:
         """Spline values [P, orders, NV] at instants inside the window."""
         return evaluate(self.C, self.first, self.grid, np.asarray(t, dtype=float), orders)
+
+
+def within_joint_range(q_new: np.ndarray, q_last: np.ndarray, lower: np.ndarray,
+                       upper: np.ndarray) -> np.ndarray:
+    """The extrapolated coordinates q_new [6] with each joint angle (ankle = foot - shank,
+    knee = shank - thigh, hip = thigh - HAT, ``skeleton.JOINT_MAP``) kept within
+    [lower, upper] [rad], or at q_last's angle where that is already outside: the foot angle
+    and the translations as extrapolated, the other segments following the clamped joints."""
+    th_new = q_new[:3] - q_new[1:4]
+    th_last = q_last[:3] - q_last[1:4]
+    th = np.clip(th_new, np.minimum(lower, th_last), np.maximum(upper, th_last))
+    if (th == th_new).all():
+        return q_new
+    out = q_new.copy()
+    out[1:4] = q_new[0] - np.cumsum(th)
+    return out
 
 
 def revert_toward_zero(H: np.ndarray, g: np.ndarray, lin: np.ndarray, first: int,
