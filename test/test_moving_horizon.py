@@ -512,6 +512,30 @@ def test_the_shipped_routine_is_tracked_against_its_truth(routine, model, span, 
         assert (err < np.array(limit)).all(), (phase, err)
 
 
+def test_a_loaded_estimate_stands_on_the_ground(routine, model):
+    """The contact lets go of points the motion lifts (a heel rise), and the ground wrench is
+    a free variable: a window once settled with the body floating 0.9 m up while the plate read
+    its weight (dynamics, angles and plate all fitted) through 3.5 s of quiet stance. Such a
+    state is a loss of control now. Against the truth: whenever the estimate carries load,
+    its ankle height is the truth's within 1 cm from the first landing on (first 12 s of
+    bags/routine: a jump, then quiet stance, where the window had floated) and never further
+    off than a foot on the ground allows."""
+    obs, truth = routine
+    sa, sw = obs.t_angles <= 12.0, obs.t_wrench <= 12.0
+    run = estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw], obs.wrench[sw])
+    ref = run.refined
+    loaded = ref.s[:, 1] > 0.15 * model.p.body_weight
+    y_true = np.interp(ref.t, truth.t, truth.q[:, 5])
+    assert loaded.sum() > 0.8 * ref.t.size
+    err = np.abs(ref.q[:, 5] - y_true)
+    stance = loaded & (ref.t >= 1.5)
+    assert err[stance].max() < 0.01, (err[stance].max(), ref.t[stance][np.argmax(err[stance])])
+    points = np.asarray(model.p.contact.points)
+    reach = np.hypot(points[:, 0], points[:, 1]).max() - model.ankle_height
+    margin = MovingHorizonSettings().loaded_lift_margin_m
+    assert (ref.q[loaded, 5] - model.ankle_height).max() < reach + margin
+
+
 def test_takeoffs_and_jump_heights_of_every_jump(routine, model):
     """``metrics.takeoffs`` finds each flight's lift-off (the interpolated downward crossing,
     flickers shorter than a flight ignored) and ``jump_heights`` is the ballistic apex: on a

@@ -113,6 +113,11 @@ class MovingHorizonEstimator:
             full_share=st.contact_full_share, release_sd=st.contact_release_sd))
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
+        # the highest the ankle can be above its standing height with a contact point on the
+        # ground (the foot rotated about its farthest point), plus a margin [m]
+        points = np.asarray(model.p.contact.points, dtype=float)
+        self.max_loaded_lift_m = (float(np.hypot(points[:, 0], points[:, 1]).max())
+                                  - model.ankle_height + st.loaded_lift_margin_m)
         pas = model.p.passive
         self.joint_range = (np.asarray(pas.theta_lower, dtype=float),
                             np.asarray(pas.theta_upper, dtype=float))
@@ -378,6 +383,13 @@ class MovingHorizonEstimator:
             return f'ground force {np.hypot(s[:, 0], s[:, 1]).max() / bw:.1f} BW'
         if np.abs(q[:, 4:6]).max() > st.max_translation_m:
             return f'ankle {np.abs(q[:, 4:6]).max():.1f} m from the origin'
+        lift = q[:, 5] - self.model.ankle_height
+        floating = (s[:, 1] > st.contact_full_load_bw * bw) & (lift > self.max_loaded_lift_m)
+        if floating.any():
+            k = np.argmax(np.where(floating, lift, -np.inf))
+            return (f'a ground force of {s[k, 1] / bw:.1f} BW with the ankle {lift[k]:.2f} m '
+                    f'above its standing height (on the ground at most '
+                    f'{self.max_loaded_lift_m - st.loaded_lift_margin_m:.2f} m)')
         ta, ya = w.angles.t, w.angles.y
         newest = np.nonzero(np.isfinite(ya).all(axis=1))[0][-3:]
         if newest.size == 3:       # all three newest samples far off (not a spike)
