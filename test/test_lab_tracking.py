@@ -300,7 +300,7 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     assert 'ground wrench smoothed at 20 Hz (cut-off [40.0] Hz lowered to 20 Hz' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing):
-    # measured 4.0 / 2.5 / 2.6 / 1.5 deg RMS and 11.0 % BW RMS of vertical force in contact.
+    # measured 4.2 / 2.4 / 2.2 / 1.4 deg RMS and 10.7 % BW RMS of vertical force in contact.
     # The foot was at 1.9 deg while the estimator still lost control 85 ms after the take-off
     # and started afresh in the flight; tracked through, its foot stays 5-11 deg off the
     # mocap in the deep landing (README, Known limitations) - a measured regression, bounded
