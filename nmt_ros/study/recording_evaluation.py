@@ -144,9 +144,11 @@ def mhe_settings_from_status(values: Mapping[str, Any]) -> MovingHorizonSettings
 
 
 def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> dict:
-    """Batch Stage 1 and windowed Stage 2 on the source observations, graph settings."""
+    """Batch Stage 1 and windowed Stage 2 on the source observations, graph settings: the
+    bag's subject model (``BAG/subject.yaml``, else the jumper) and, like the skeletal
+    tracker, only the samples from its ``start_s`` on."""
     from nmt_ros.io.trial_bag import read_observations
-    from nmt_ros.model.jumper import default_model
+    from nmt_ros.model.subject import load_subject_model
     from nmt_ros.tracking.conditioning import ConditioningSettings, condition
     from nmt_ros.tracking.moving_horizon.estimator import estimate
     from nmt_ros.tracking.skeletal_tracker import SKTSettings
@@ -154,12 +156,15 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
     from nmt_ros.tracking.streaming import initial_activations, track_stage1
 
     sk, mu = settings.get('skeletal_tracker', {}), settings.get('muscle_tracker', {})
-    model = default_model()
+    model = load_subject_model(source)
     obs = read_observations(source)
     duration = _float(settings.get('observation_publisher', {}), 'setting.duration_s', 0.0)
     if duration > 0:                 # the replay's part only (the publisher's rule)
         t_end = min(obs.t_angles[0], obs.t_wrench[0]) + duration + 1e-10
         obs = obs.before(t_end)
+    start = _float(sk, 'setting.start_s', 0.0)
+    if start > 0:                    # the node leaves the samples before start_s out
+        obs = obs.after(start)       # (on a time from there: shifted back below)
     cs = ConditioningSettings(angle_cutoff_hz=_float(sk, 'setting.angle_cutoff_hz', 10.0),
                               force_cutoff_hz=_float(sk, 'setting.force_cutoff_hz', 50.0))
     if sk.get('setting.estimator', 'skt') == 'mhe':
@@ -173,7 +178,8 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
         res = track_stage1(model, condition(obs.t_angles, obs.angles, obs.t_wrench,
                                             obs.wrench, cs),
                            skt, _float(sk, 'setting.wrench_rate_hz', 1080.0))
-    out = {'t': res.t, 'tau': res.tau, 'status': res.status, 'epoch_ns': obs.info['epoch_ns']}
+    out = {'t': res.t + start, 'tau': res.tau, 'status': res.status,
+           'epoch_ns': obs.info['epoch_ns']}
     if res.ok:
         th, thd, thdd = (model.batch(model.joint_angles, x)[0] for x in (res.q, res.qd, res.qdd))
         t2, tau2 = res.t, res.tau
@@ -191,7 +197,7 @@ def batch_reference(source: str | os.PathLike, settings: Mapping[str, str]) -> d
             t2, tau2, th, thd, thdd, a0, mode='windowed',
             window_length=_float(mu, 'setting.window_length_s', 0.03),
             window_stride=stride if stride > 0 else None)
-        out.update(f=s2.f, t2=s2.t)
+        out.update(f=s2.f, t2=s2.t + start)
     return out
 
 
