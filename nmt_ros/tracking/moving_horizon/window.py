@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nmt_ros.model.skeleton import JOINT_MAP
 from nmt_ros.tracking.moving_horizon.normal_equations import (
     NormalEquations,
     Prior,
@@ -436,13 +437,12 @@ def within_joint_range(q_new: np.ndarray, q_last: np.ndarray, lower: np.ndarray,
     knee = shank - thigh, hip = thigh - HAT, ``skeleton.JOINT_MAP``) kept within
     [lower, upper] [rad], or at q_last's angle where that is already outside: the foot angle
     and the translations as extrapolated, the other segments following the clamped joints."""
-    th_new = q_new[:3] - q_new[1:4]
-    th_last = q_last[:3] - q_last[1:4]
+    th_new, th_last = JOINT_MAP @ q_new, JOINT_MAP @ q_last
     th = np.clip(th_new, np.minimum(lower, th_last), np.maximum(upper, th_last))
     if (th == th_new).all():
         return q_new
     out = q_new.copy()
-    out[1:4] = q_new[0] - np.cumsum(th)
+    out[1:4] = q_new[0] - np.cumsum(th)      # JOINT_MAP inverted from the foot angle on
     return out
 
 
