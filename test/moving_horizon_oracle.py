@@ -55,12 +55,21 @@ def _diag_jacobian(B: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def angle_group(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, theta: np.ndarray,
-                sd: np.ndarray, huber_k: float) -> Group:
-    """Mocap samples: (q_1..4(t) - theta_obs) / sd."""
-    seg, B, v = points(C, first, grid, t, 1)
+                sd: np.ndarray, huber_k: float, free_foot: tuple | None = None) -> Group:
+    """Mocap samples: (q_1..4(t) - theta_obs) / sd. ``free_foot`` = (fn, weights, sd_free):
+    the foot's rows weigh as sd_free where the ground does not hold both contact points
+    (their held weights h_heel h_toe = b: 1/sd^2 -> b/sd^2 + (1 - b)/sd_free^2, held)."""
+    seg, B, v = points(C, first, grid, t, 3 if free_foot else 1)
     valid = np.isfinite(theta)
     r = np.where(valid, (v[:, 0, 0:4] - np.nan_to_num(theta)) / sd, 0.0)
     w = huber_weights(r, huber_k) * valid
+    if free_foot is not None:
+        fn, cw, sd_free = free_foot
+        s = v[:, 0, LAYOUT['s']]
+        kin = fn(v[:, 0, LAYOUT['q']], v[:, 1, LAYOUT['q']], v[:, 2, LAYOUT['q']],
+                 v[:, 0, LAYOUT['a']], s)[2]
+        both = np.prod(held_weights(s, kin, cw)[1], axis=1)
+        w[:, 0] *= np.sqrt(both + (1.0 - both) * (sd[0] / sd_free) ** 2)
     return Group(seg, r * w, _diag_jacobian(B[:, 0], w / sd), COLS['q'][:4])
 
 
@@ -110,6 +119,7 @@ class CollocationWeights:
     tau_act: float
     tau_deact: float
     release_sd: float = 0.0     # a point lifted by more than this x sd_height lets go
+    support_sd: float = 0.0     # m: under load the lowest point's height vs its sinkage
 
 
 def collocation_groups(C: np.ndarray, first: int, grid: KnotGrid, segments: np.ndarray,
@@ -181,14 +191,9 @@ def contact_group(seg: np.ndarray, B: np.ndarray, s: np.ndarray, kin: np.ndarray
     shares and weights are evaluated at the current point and held (IRLS-like).
     kin [P, 10] = heel x, y, toe x, y, their rates, foot COM x, y; J_kin [P, 10, 12]."""
     P = s.shape[0]
-    share = load_shares(s, kin)
+    share, held_by, ramp = held_weights(s, kin, w)
     load = np.maximum(share * s[:, 1:2], 0.0)                       # [P, 2] N
-    ramp = np.clip((s[:, 1:2] - w.free_load) / (w.full_load - w.free_load), 0.0, 1.0)
-    held_by = np.minimum(share / w.full_share, 1.0) * ramp
     y = kin[:, [1, 3]]
-    if w.release_sd > 0:   # redescending: the lift above the sinkage, in sd_height units
-        lift = np.maximum(y + share * s[:, 1:2] / w.stiffness, 0.0) / w.sd_height
-        held_by = held_by / (1.0 + (lift / w.release_sd) ** 2) ** 2
     weight = np.sqrt(held_by)
     xdot = kin[:, [4, 6]]
     r = np.concatenate([weight * (y + load / w.stiffness) / w.sd_height,
@@ -204,7 +209,36 @@ def contact_group(seg: np.ndarray, B: np.ndarray, s: np.ndarray, kin: np.ndarray
         J[:, i, :, 6 + 1] = (weight[:, i] * share[:, i]
                              / (w.stiffness * w.sd_height))[:, None] * B[:, 0, :]
     r[:, :2] = weight * (y + share * s[:, 1:2] / w.stiffness) / w.sd_height
+    if w.support_sd > 0:
+        # under load the lowest point (height + sinkage, the smaller one) is on the ground:
+        # one more row, weighted by the load ramp (held), shares held
+        sink = y + share * s[:, 1:2] / w.stiffness
+        low = np.argmin(sink, axis=1)
+        rows = np.arange(P)
+        k = np.array([1, 3])[low]
+        ws = ramp[:, 0] / w.support_sd
+        r = np.concatenate([r, (ws * sink[rows, low])[:, None]], axis=1)
+        Js = np.zeros((P, 1, 4, cols.size))
+        Js[:, 0, :, 0:6] = ws[:, None, None] * (J_kin[rows, k, None, 0:6] * B[:, 0, :, None]
+                                                + J_kin[rows, k, None, 6:12]
+                                                * B[:, 1, :, None])
+        Js[:, 0, :, 6 + 1] = (ws * share[rows, low] / w.stiffness)[:, None] * B[:, 0, :]
+        J = np.concatenate([J, Js], axis=1)
     return Group(seg, r, J, cols)
+
+
+def held_weights(s: np.ndarray, kin: np.ndarray, w: CollocationWeights,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Load shares [P, 2] (``load_shares``), how firmly each point is held [P, 2] (its share
+    up to full_share, times the load ramp, times the redescending release of a lifted point)
+    and the load ramp [P, 1] (0 airborne .. 1 loaded)."""
+    share = load_shares(s, kin)
+    ramp = np.clip((s[:, 1:2] - w.free_load) / (w.full_load - w.free_load), 0.0, 1.0)
+    held_by = np.minimum(share / w.full_share, 1.0) * ramp
+    if w.release_sd > 0:   # redescending: the lift above the sinkage, in sd_height units
+        lift = np.maximum(kin[:, [1, 3]] + share * s[:, 1:2] / w.stiffness, 0.0) / w.sd_height
+        held_by = held_by / (1.0 + (lift / w.release_sd) ** 2) ** 2
+    return share, held_by, ramp
 
 
 def segment_blocks(groups: list[Group], segments: np.ndarray,

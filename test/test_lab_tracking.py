@@ -299,13 +299,14 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     assert facts['mhe_wrench_cutoff_hz'] == 20.0
     assert 'ground wrench smoothed at 20 Hz (cut-off [40.0] Hz lowered to 20 Hz' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
-    # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing):
-    # measured 4.2 / 2.4 / 2.2 / 1.4 deg RMS and 10.7 % BW RMS of vertical force in contact.
-    # The foot was at 1.9 deg while the estimator still lost control 85 ms after the take-off
-    # and started afresh in the flight; tracked through, its foot stays 5-11 deg off the
-    # mocap in the deep landing (README, Known limitations) - a measured regression, bounded
-    # here so that it cannot grow unnoticed
+    # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing)
+    # without a loss of control: measured 2.2 / 2.0 / 4.0 / 1.6 deg RMS and 10.5 % BW RMS of
+    # vertical force in contact. The thigh is the compromise of the deep landing, where the
+    # measured forces and the planar model's rigid trunk disagree on where the body is (it
+    # floated 0.23 m up before the ground support held it: two losses of control, thigh
+    # 2.2 deg); the force is the 100 Hz landing impacts the 20 Hz wrench smoothness rounds
     assert 'Stage 1 is the moving-horizon estimator' in proc.stdout
+    assert 'loss of control' not in proc.stdout
     est_a = read_arrays(out / 'estimates', '/nmt/skeletal/segment_angles')
     est_w = read_arrays(out / 'estimates', '/nmt/skeletal/ground_wrench')
     obs_a = read_arrays(REAL_BAG, '/mocap/segment_angles')
@@ -313,7 +314,7 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     ia = np.searchsorted(obs_a.stamp_ns, est_a.stamp_ns)
     assert (obs_a.stamp_ns[ia] == est_a.stamp_ns).all()
     rms_deg = np.degrees(np.sqrt(np.mean((est_a.position - obs_a.position[ia]) ** 2, axis=0)))
-    assert (rms_deg < np.array([4.5, 3.5, 3.5, 3.5])).all(), rms_deg
+    assert (rms_deg < np.array([3.0, 3.0, 4.5, 2.5])).all(), rms_deg
     iw = np.searchsorted(obs_w.stamp_ns, est_w.stamp_ns)
     contact = obs_w.force[iw, 1] > 20.0
     bw = 94.5 * 9.81

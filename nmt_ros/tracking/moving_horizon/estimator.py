@@ -110,7 +110,9 @@ class MovingHorizonEstimator:
             w_u=st.excitation_weight, w_du=st.excitation_rate_weight, rho=st.bound_weight,
             tau_act=m.tau_act, tau_deact=m.tau_deact,
             wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free,
-            full_share=st.contact_full_share, release_sd=st.contact_release_sd))
+            full_share=st.contact_full_share, release_sd=st.contact_release_sd,
+            support_sd=st.contact_support_sd_m,
+            free_foot_sd=float(np.radians(st.free_foot_angle_sd_deg))))
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         # the highest the ankle can be above its standing height with a contact point on the

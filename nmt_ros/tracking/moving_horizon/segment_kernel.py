@@ -54,6 +54,8 @@ class KernelSpec:
     share_free: bool = False      # differentiate the contact points' load shares
     full_share: float = 0.2       # a point with this share of the vertical force is held
     release_sd: float = 0.0       # a point lifted by more than this x sd_height lets go
+    support_sd: float = 0.0       # m: the lowest point stands on the ground under load (0: off)
+    free_foot_sd: float = 0.0     # rad: the foot angle's SD where a point is free (0: as held)
 
 
 def _basis(u: ca.SX, dt: float) -> list[list[ca.SX]]:
@@ -103,10 +105,41 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         held_values.append(value)
         return sym
 
+    kinematics = contact_kinematics_function(model)
+
+    def contact(q: ca.SX, qd: ca.SX, sg: ca.SX) -> tuple[ca.SX, ...]:
+        """The kinematic contact at one instant: generalised forces of the wrench, heel and
+        toe heights [2], slips [2], their load shares [2] (from the centre of pressure), the
+        load factor (0 airborne .. 1 loaded) and how firmly each point is held [2] (0..1)."""
+        gen_s, pos, vel, com = kinematics(q, qd, sg)
+        fx, fy, mz = sg[0], sg[1], sg[2]
+        m_heel = (pos[0] - com[0]) * fy - (pos[1] - com[1]) * fx
+        m_toe = (pos[2] - com[0]) * fy - (pos[3] - com[1]) * fx
+        span = m_toe - m_heel
+        ok = ca.logic_and(fy > 1.0, ca.fabs(span) > 1e-3)
+        toe = ca.if_else(ok, ca.fmin(ca.fmax((mz - m_heel) / ca.if_else(ok, span, 1.0), 0.0),
+                                     1.0), 0.5)
+        shares = ca.vertcat(1 - toe, toe)
+        loaded = ca.fmin(ca.fmax((fy - s.free_load) / (s.full_load - s.free_load), 0.0), 1.0)
+        held_by = ca.fmin(shares / s.full_share, 1.0) * loaded
+        heights = ca.vertcat(pos[1], pos[3])
+        if s.release_sd > 0:   # a point the motion lifts is let go (redescending weight)
+            lift = ca.fmax(heights + shares * fy / s.stiffness, 0) / s.sd_height
+            held_by = held_by / (1 + (lift / s.release_sd) ** 2) ** 2
+        return gen_s, heights, ca.vertcat(vel[0], vel[2]), shares, fy, loaded, held_by
+
     sd_a = ca.DM(s.angle_sd)
     for i in range(A):
-        r = (at(u_a[i], 'q', 0)[0:4] - y_a[4 * i:4 * i + 4]) / sd_a
+        q_i = at(u_a[i], 'q', 0)
+        r = (q_i[0:4] - y_a[4 * i:4 * i + 4]) / sd_a
         w = hold(_huber(r, s.huber_k), f'hw_a{i}') * m_a[4 * i:4 * i + 4]
+        if s.free_foot_sd > 0:
+            # the foot's angle sample weighs as free_foot_sd where the ground does not hold
+            # both contact points (a heel rise, a flight): there the mocap alone tells it
+            held_by = contact(q_i, at(u_a[i], 'q', 1), at(u_a[i], 's', 0))[-1]
+            both = held_by[0] * held_by[1]
+            boost = ca.sqrt(both + (1 - both) * (s.angle_sd[0] / s.free_foot_sd) ** 2)
+            w = w * ca.vertcat(hold(boost, f'foot_free{i}'), 1, 1, 1)
         rows.append(w * r)
         groups['angles'].append(w * r)
     sd_w = ca.DM(s.wrench_sd)
@@ -123,41 +156,25 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
     sd_dyn = ca.DM(s.sd_dyn)
     beta = s.tau_act / s.tau_deact
     T = ca.DM(model.T)
-    kinematics = contact_kinematics_function(model)
     for g_u in GAUSS:
         q, qd, qdd = (at(g_u, 'q', k) for k in range(3))
         a, ad, add = (at(g_u, 'a', k) for k in range(3))
         sg = at(g_u, 's', 0)
         tau_m, _ = model.muscle_torques(q, qd, a)
-        gen_s, pos, vel, com = kinematics(q, qd, sg)
+        gen_s, heights, slips, shares, fy, loaded, held_by = contact(q, qd, sg)
         rhs = (model.inertial_gravity(q, qd) + gen_s
                + T @ (tau_m + model.passive_torques(q, qd)))
         rows.append(colloc * (model.mass_matrix(q) @ qdd - rhs) / (sd_dyn * scale))
         # kinematic contact: heel and toe, load shares held (see residuals.contact_group)
-        fx, fy, mz = sg[0], sg[1], sg[2]
-        m_heel = (pos[0] - com[0]) * fy - (pos[1] - com[1]) * fx
-        m_toe = (pos[2] - com[0]) * fy - (pos[3] - com[1]) * fx
-        span = m_toe - m_heel
-        ok = ca.logic_and(fy > 1.0, ca.fabs(span) > 1e-3)
-        toe = ca.if_else(ok, ca.fmin(ca.fmax((mz - m_heel) / ca.if_else(ok, span, 1.0), 0.0),
-                                     1.0), 0.5)
-        share = ca.vertcat(1 - toe, toe)
-        if not s.share_free:
-            share = hold(share, 'share')
-        shares_now = ca.vertcat(1 - toe, toe)
-        held_by = (ca.fmin(shares_now / s.full_share, 1.0)
-                   * ca.fmin(ca.fmax((fy - s.free_load) / (s.full_load - s.free_load), 0.0),
-                             1.0))
-        load = share * fy
-        heights = ca.vertcat(pos[1], pos[3])
-        slips = ca.vertcat(vel[0], vel[2])
-        r_height = (heights + load / s.stiffness) / (s.sd_height * scale)
-        if s.release_sd > 0:   # a point the motion lifts is let go (redescending weight)
-            lift = ca.fmax(heights + shares_now * fy / s.stiffness, 0) / s.sd_height
-            held_by = held_by / (1 + (lift / s.release_sd) ** 2) ** 2
+        share = shares if s.share_free else hold(shares, 'share')
+        r_height = (heights + share * fy / s.stiffness) / (s.sd_height * scale)
         weight = hold(ca.sqrt(held_by), 'weight')
         rows.append(colloc * weight * r_height)
         rows.append(colloc * weight * slips / (s.sd_slip * scale))
+        if s.support_sd > 0:   # under load the foot's lowest point is on the ground
+            sinkage = heights + share * fy / s.stiffness
+            rows.append(colloc * hold(loaded, 'loaded') * ca.mmin(sinkage)
+                        / (s.support_sd * scale))
         # excitations (Eq. 8a inverted): effort, smoothness, bounds on u and a
         den = ca.fmax(1 - (1 - beta) * a, beta)   # a <= 1 exact; beyond, kept finite
         u = (s.tau_act * ad + beta * a) / den
