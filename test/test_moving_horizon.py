@@ -214,8 +214,8 @@ def test_kernel_equals_the_independent_numpy_residuals(stance, model):
     # weighed up, the support row at half weight)
     light = C.copy()
     light[:, LAYOUT['s']] *= 0.1
-    for C in (C, light):
-        _kernel_equals_the_oracle(model, st, w, C, plate, segs)
+    for c in (C, light):
+        _kernel_equals_the_oracle(model, st, w, c, plate, segs)
 
 
 def _kernel_equals_the_oracle(model, st, w, C, plate, segs):
