@@ -66,8 +66,9 @@ class MovingHorizonSettings:
     # SD [m] (0: off). The release above lets go of any point the motion lifts, and the
     # ground wrench is free, so nothing held the body down: the real drop jump's deep landing
     # floated 0.23 m up at 2.3 BW (two losses of control). At 0.01: none (0.002 and 0.005:
-    # one; 0.03: none; those with the row's shares differentiated); 16 realisations of the routine: landing torques 15.6 / 13.0 / 13.9
-    # -> 15.0 / 12.6 / 12.8 % of peak, re-initialisations 2.9 -> 2.7 a minute
+    # one; 0.03: none; those with the row's shares differentiated); 16 realisations of the
+    # routine: landing torques 15.6 / 13.0 / 13.9 -> 15.0 / 12.6 / 12.8 % of peak,
+    # re-initialisations 2.9 -> 2.7 a minute
     contact_support_sd_m: float = 0.01
     # the foot's mocap angle SD [deg] where the ground does not hold both contact points (a
     # heel rise, a flight; 0: angle_sd_deg's). With a flat foot held by both points the mocap
