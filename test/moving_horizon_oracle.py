@@ -208,11 +208,11 @@ def contact_group(seg: np.ndarray, B: np.ndarray, s: np.ndarray, kin: np.ndarray
     for i in range(2):   # height rows also depend on the load = share_i Fy (share held)
         J[:, i, :, 6 + 1] = (weight[:, i] * share[:, i]
                              / (w.stiffness * w.sd_height))[:, None] * B[:, 0, :]
-    r[:, :2] = weight * (y + share * s[:, 1:2] / w.stiffness) / w.sd_height
+    sink = y + share * s[:, 1:2] / w.stiffness      # each point's height + its sinkage
+    r[:, :2] = weight * sink / w.sd_height
     if w.support_sd > 0:
         # under load the lowest point (height + sinkage, the smaller one) is on the ground:
         # one more row, weighted by the load ramp (held), shares held
-        sink = y + share * s[:, 1:2] / w.stiffness
         low = np.argmin(sink, axis=1)
         rows = np.arange(P)
         k = np.array([1, 3])[low]
