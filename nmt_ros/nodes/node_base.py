@@ -37,9 +37,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from msg_adapters.diagnostics import StatusRecord, from_diagnostic_array, to_diagnostic_array
 from msg_adapters.stamps import time_to_ns
+from nmt_ros.model import compiled
 from nmt_ros.nodes.end_of_stream import STREAM_PART, TrialBook, end_of_stream_values
 from nmt_ros.nodes.input_gate import Sample, StreamGate, TrialClock
-from nmt_ros.nodes.node_status import ERROR, WARN, NodeStatus, Report
+from nmt_ros.nodes.node_status import ERROR, OK, WARN, NodeStatus, Report
 from nmt_ros.nodes.polled_subscriptions import PolledSubscriptions
 from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
 from nmt_ros.topics import STATUS
@@ -246,6 +247,12 @@ class TrackerNode(NmtNode):
         self.pubs = {topic: self.create_publisher(kind, topic, qos)
                      for topic, kind in self.OUTPUTS.items()}
         self.create_timer(0.05, self.watchdog)
+        # the numerical core is built: say what it compiled (first run on a machine) or why
+        # it runs in CasADi's virtual machine (no C compiler: several times slower)
+        for note in compiled.notes():
+            self.status.event(OK, note)
+        if compiled.compile_problem() is not None:
+            self.status.event(WARN, compiled.compile_problem())
         self.status.state = 'ready'
         # end-of-stream announcements (transient local: heard even if matched late)
         self.create_subscription(DiagnosticArray, STATUS, self.on_status, STATUS_QOS)
