@@ -16,6 +16,7 @@ from moving_horizon_oracle import (
 import numpy as np
 import pytest
 
+from nmt_ros.model.point_map import PointMap
 from nmt_ros.records import Observations
 from nmt_ros.tracking.moving_horizon import spline
 from nmt_ros.tracking.moving_horizon.estimator import MovingHorizonEstimator, estimate
@@ -26,7 +27,7 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
     diffuse_along,
     marginalize,
 )
-from nmt_ros.tracking.moving_horizon.point_functions import PointMap, collocation_function
+from nmt_ros.tracking.moving_horizon.point_functions import collocation_function
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NB, NX
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.moving_horizon.window import revert_toward_zero, within_joint_range

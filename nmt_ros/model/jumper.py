@@ -20,6 +20,7 @@ import numpy as np
 
 from nmt_ros.model import contact, joint_limits, muscles, paths, skeleton
 from nmt_ros.model.parameters import JumperParameters, load_parameters
+from nmt_ros.model.point_map import PointMap
 
 NQ = 6
 NU = 3
@@ -32,7 +33,7 @@ class JumperModel:
     def __init__(self, params: JumperParameters | None = None) -> None:
         self.p = params if params is not None else load_parameters()
         self.T = skeleton.T_MATRIX
-        self._maps: dict[tuple[str, int], ca.Function] = {}
+        self._maps: dict[tuple[str, int], tuple[ca.Function, PointMap]] = {}
         self._build()
 
     # ------------------------------------------------------------------ symbolic build
@@ -169,25 +170,16 @@ class JumperModel:
         """Evaluate ``fn`` on n samples at once; args are [n, k] arrays (or [k] constants).
 
         Returns one array per output, [n, rows] for column outputs and [n, rows, cols] for
-        matrices.
+        matrices (``point_map.PointMap``: through the mapped function's buffers).
         """
         n = max(np.asarray(x).shape[0] for x in args if np.ndim(x) == 2)
-        key = (fn.name(), n)
+        key = (fn.name(), id(fn))
         if key not in self._maps:
-            self._maps[key] = fn.map(n, 'serial')
-        cols = [np.asarray(x, dtype=float).T if np.ndim(x) == 2
-                else np.repeat(np.asarray(x, dtype=float)[:, None], n, axis=1) for x in args]
-        outs = self._maps[key](*cols)
-        outs = outs if isinstance(outs, (list, tuple)) else [outs]
-        result = []
-        for k, o in enumerate(outs):
-            arr = np.asarray(o)
-            rows, cols_k = fn.size1_out(k), fn.size2_out(k)
-            if cols_k == 1:
-                result.append(arr.T.reshape(n, rows))
-            else:
-                result.append(arr.reshape(rows, cols_k, n, order='F').transpose(2, 0, 1))
-        return result
+            self._maps[key] = (fn, PointMap(fn))    # fn kept: its id stays its own
+        rows = [np.asarray(x, dtype=float) if np.ndim(x) == 2
+                else np.broadcast_to(np.asarray(x, dtype=float), (n, np.size(x)))
+                for x in args]
+        return self._maps[key][1](*rows)
 
     def call(self, fn: ca.Function, *args: np.ndarray) -> list[np.ndarray]:
         """Evaluate ``fn`` once; returns numpy arrays (vectors flattened)."""

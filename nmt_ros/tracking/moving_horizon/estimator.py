@@ -30,13 +30,10 @@ import numpy as np
 from nmt_ros.model.compiled import compiled
 from nmt_ros.model.contact import liftoff_time
 from nmt_ros.model.jumper import JumperModel
+from nmt_ros.model.point_map import PointMap
 from nmt_ros.model.squat import rest_activations
 from nmt_ros.records import SKTResult
-from nmt_ros.tracking.moving_horizon.point_functions import (
-    PointMap,
-    excitation,
-    output_function,
-)
+from nmt_ros.tracking.moving_horizon.point_functions import excitation, output_function
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV, NX, PLATE
 from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKernel, capacity
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings

@@ -78,47 +78,6 @@ def output_function(model: JumperModel) -> ca.Function:
                        [tau_m, f, model.joint_angles(q), model.joint_angles(qd)])
 
 
-class PointMap:
-    """A point function evaluated on P points at once through CasADi's buffers (no
-    conversions): arguments [P, k] arrays (points in rows), outputs [P, rows] for column
-    outputs and [P, rows, cols] for matrices. One map per P is kept (a few sizes recur)."""
-
-    def __init__(self, fn: ca.Function, keep: int = 16) -> None:
-        self.fn = fn
-        self.keep = keep
-        self._maps: dict[int, tuple] = {}
-
-    def _map(self, n: int) -> tuple:
-        if n not in self._maps:
-            if len(self._maps) >= self.keep:
-                self._maps.pop(next(iter(self._maps)))
-            mapped = self.fn.map(n, 'serial')
-            buf, trigger = mapped.buffer()
-            args = [np.zeros((n, self.fn.size1_in(i))) for i in range(self.fn.n_in())]
-            outs = [np.zeros((n, self.fn.size2_out(i), self.fn.size1_out(i)))
-                    for i in range(self.fn.n_out())]
-            for i, x in enumerate(args):
-                buf.set_arg(i, memoryview(x.reshape(-1)))
-            for i, x in enumerate(outs):
-                buf.set_res(i, memoryview(x.reshape(-1)))
-            self._maps[n] = (buf, trigger, args, outs)
-        return self._maps[n]
-
-    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
-        n = np.shape(args[0])[0]
-        _, trigger, ins, outs = self._map(n)
-        for dst, src in zip(ins, args):
-            dst[...] = src
-        trigger()
-        res = []
-        for i, o in enumerate(outs):
-            if self.fn.size2_out(i) == 1:
-                res.append(o[:, 0, :].copy())
-            else:
-                res.append(o.transpose(0, 2, 1).copy())
-        return res
-
-
 @dataclass(frozen=True)
 class Excitation:
     """u, udot and their partial derivatives (elementwise, [P, 9] each) from a, adot, addot."""

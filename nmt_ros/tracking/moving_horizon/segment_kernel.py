@@ -22,10 +22,8 @@ import numpy as np
 
 from nmt_ros.model.compiled import compiled
 from nmt_ros.model.jumper import JumperModel
-from nmt_ros.tracking.moving_horizon.point_functions import (
-    PointMap,
-    contact_kinematics_function,
-)
+from nmt_ros.model.point_map import PointMap
+from nmt_ros.tracking.moving_horizon.point_functions import contact_kinematics_function
 from nmt_ros.tracking.moving_horizon.residuals import GAUSS, LAYOUT, NV, NX, PLATE
 
 
@@ -216,7 +214,7 @@ def capacity(rate_hz: float, knot_rate_hz: float) -> int:
 
 
 class SegmentKernel:
-    """The compiled kernel mapped over segments (``point_functions.PointMap``), with its
+    """The compiled kernel mapped over segments (``model.point_map.PointMap``), with its
     sample capacities; built once per model and spec in a process (kept in ``_KERNELS``)."""
 
     def __init__(self, model: JumperModel, spec: KernelSpec) -> None:
