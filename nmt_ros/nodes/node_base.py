@@ -40,6 +40,7 @@ from msg_adapters.stamps import time_to_ns
 from nmt_ros.model import compiled
 from nmt_ros.nodes.end_of_stream import STREAM_PART, TrialBook, end_of_stream_values
 from nmt_ros.nodes.input_gate import Sample, StreamGate, TrialClock
+from nmt_ros.nodes.input_thread import InputThread
 from nmt_ros.nodes.node_status import ERROR, OK, WARN, NodeStatus, Report
 from nmt_ros.nodes.polled_subscriptions import PolledSubscriptions
 from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
@@ -221,7 +222,8 @@ class TrackerNode(NmtNode):
                                '[s], merged in stamp order (one executor wake-up per batch '
                                'instead of per message; 0 = a callback per message)',
                                low=0.0, high=1.0)
-        self.polled: PolledSubscriptions | None = None
+        self.polled: InputThread | None = None
+        self.input_overflow_said = False
         self.taking = False
         self.book = TrialBook(self.INPUTS)
         self.clock = TrialClock(0)
@@ -261,14 +263,17 @@ class TrackerNode(NmtNode):
     def _open_inputs(self) -> None:
         qos = data_qos(self.qos_depth, self.input_reliable)
         if self.take_period_s > 0:
-            self.polled = PolledSubscriptions(self)
+            polled = PolledSubscriptions(self)
             # taken fastest stream first: while a long take of the force plate runs, newer
             # samples of the slower stream arrive and are taken after it, so a batch never
             # holds the fast stream far ahead of the slow one (a node that fell behind took
             # 0.3 s of force-plate data past its mocap and rejected mocap samples as late)
             periods = {topic: gate.period_ns for topic, gate in self.gates.items()}
             for topic in sorted(self.INPUTS, key=lambda t: periods.get(t, 0)):
-                self.polled.add(topic, self.INPUTS[topic], qos, raw=False)
+                polled.add(topic, self.INPUTS[topic], qos, raw=False)
+            # taken on a thread of their own: the middleware's history never overflows while
+            # a batch is estimated (``input_thread``)
+            self.polled = InputThread(polled, self.take_period_s)
             self.create_timer(self.take_period_s, self.take_inputs)
         else:
             for topic, kind in self.INPUTS.items():
@@ -300,6 +305,11 @@ class TrackerNode(NmtNode):
                  for topic, taken in self.polled.take_all().items()
                  for n, (msg, _info) in enumerate(taken)]
         batch.sort(key=lambda item: item[:3])
+        if self.polled.overflowed and not self.input_overflow_said:
+            self.input_overflow_said = True
+            self.status.event(ERROR, f'more than {self.polled.max_messages} input messages '
+                              'waiting: the node stopped taking more; the middleware keeps '
+                              f'the newest {self.qos_depth} per topic, older ones are lost')
         before = self.last_input
         for *_, topic, msg in batch:
             self.on_input(topic, msg)
