@@ -19,7 +19,8 @@ are ``uint32`` length (including the NUL) + bytes; sequences are ``uint32`` coun
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 import struct
 
 import numpy as np
@@ -117,7 +118,9 @@ def _uniform_rows(blobs: Sequence[bytes],
     return matrix[same_struct], mask
 
 
-def _parse_joint_state(blob: bytes) -> dict:
+def _parse_joint_state(blob: bytes, strict: bool = True) -> dict:
+    """One CDR JointState; ``strict``: an array must be empty or have one value per name
+    (``ValueError`` otherwise; ``strict`` False leaves that check to the caller)."""
     cur = _Cursor(blob)
     sec, nanosec = cur.stamp()
     frame_id = cur.string()
@@ -125,7 +128,7 @@ def _parse_joint_state(blob: bytes) -> dict:
     fields = {}
     for field in ('position', 'velocity', 'effort'):
         n = cur.count()
-        if n not in (0, len(names)):
+        if strict and n not in (0, len(names)):
             raise ValueError(
                 f'JointState {field} has {n} values for {len(names)} names')
         fields[field] = cur.float64s(n)
@@ -209,6 +212,94 @@ def decode_wrenches(blobs: Sequence[bytes],
         values[i] = parsed['values']
     return WrenchSeries(stamp_ns=stamp_ns, frame_id=first['frame_id'], force=values[:, :3],
                         torque=values[:, 3:], log_time_ns=log)
+
+
+# ------------------------------------------------------------ live blocks, message by message
+@dataclass(frozen=True)
+class LayoutGroup:
+    """Messages of one block that share a layout, their fields as carried (unchecked)."""
+
+    index: np.ndarray                 # [m] positions of these messages in the block
+    stamp_ns: np.ndarray              # [m] int64 header stamps
+    frame_id: str
+    names: tuple[str, ...]            # JointState: the names as carried; WrenchStamped: ()
+    arrays: dict[str, np.ndarray]     # field -> [m, count] float64, count as carried
+
+
+def header_stamp(blob: bytes) -> int | None:
+    """The header stamp [ns] of a CDR message that starts with a ``std_msgs/Header``, or
+    None if the message is too short to hold one."""
+    if len(blob) < _HEADER + 8:
+        return None
+    sec, nanosec = struct.unpack_from(('<' if blob[1] == 1 else '>') + 'iI', blob, _HEADER)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _groups(blobs: Sequence[bytes], parse: Callable[[bytes], dict],
+            columns: Callable[[np.ndarray, dict], dict[str, np.ndarray]],
+            ) -> tuple[list[LayoutGroup], dict[int, str]]:
+    """Group ``blobs`` by layout: the messages laid out as the first readable one are
+    decoded as one block (``columns``: field arrays from their byte matrix), any other
+    message alone; unreadable ones -> {position: reason}."""
+    groups: list[LayoutGroup] = []
+    unreadable: dict[int, str] = {}
+    first = None
+    for i, blob in enumerate(blobs):
+        try:
+            first = (i, parse(blob))
+            break
+        except (ValueError, UnicodeDecodeError, struct.error) as exc:
+            unreadable[i] = f'unreadable CDR message: {exc}'
+    if first is None:
+        return groups, unreadable
+    start, parsed = first
+    rest = blobs[start:]
+    matrix, fast = _uniform_rows(rest, parsed['structural'])
+    fast_index = np.flatnonzero(fast) + start
+    groups.append(LayoutGroup(fast_index, _stamps(matrix, parsed['little']),
+                              parsed['frame_id'], parsed.get('names', ()),
+                              columns(matrix, parsed)))
+    for i in np.flatnonzero(~fast) + start:
+        try:
+            one = parse(blobs[i])
+        except (ValueError, UnicodeDecodeError, struct.error) as exc:
+            unreadable[int(i)] = f'unreadable CDR message: {exc}'
+            continue
+        groups.append(LayoutGroup(np.array([i]), np.array([one['stamp_ns']], dtype=np.int64),
+                                  one['frame_id'], one.get('names', ()),
+                                  {k: v[None, :] for k, v in one['values'].items()}))
+    return groups, unreadable
+
+
+def group_joint_states(blobs: Sequence[bytes]) -> tuple[list[LayoutGroup], dict[int, str]]:
+    """CDR ``sensor_msgs/msg/JointState`` messages of a live block grouped by layout, fields
+    as carried (arrays of any length: ``msg_adapters.joint_state.joint_states_from_blobs``
+    checks them as one message is checked); unreadable messages -> {position: reason}."""
+    def parse(blob: bytes) -> dict:
+        one = _parse_joint_state(blob, strict=False)
+        one['values'] = {f: values for f, (_, values) in one['fields'].items()}
+        return one
+
+    def columns(matrix: np.ndarray, first: dict) -> dict[str, np.ndarray]:
+        return {f: _floats(matrix, offset, values.size, first['little']).reshape(
+                    matrix.shape[0], values.size)
+                for f, (offset, values) in first['fields'].items()}
+
+    return _groups(blobs, parse, columns)
+
+
+def group_wrenches(blobs: Sequence[bytes]) -> tuple[list[LayoutGroup], dict[int, str]]:
+    """CDR ``geometry_msgs/msg/WrenchStamped`` messages of a live block grouped by layout
+    (field ``'values'``: force xyz, torque xyz [m, 6]); unreadable -> {position: reason}."""
+    def parse(blob: bytes) -> dict:
+        one = _parse_wrench(blob)
+        one['values'] = {'values': one['values']}
+        return one
+
+    def columns(matrix: np.ndarray, first: dict) -> dict[str, np.ndarray]:
+        return {'values': _floats(matrix, first['offset'], 6, first['little'])}
+
+    return _groups(blobs, parse, columns)
 
 
 # ---------------------------------------------------------------------------- encoding

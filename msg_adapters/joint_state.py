@@ -26,8 +26,8 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from .cdr_arrays import encode_joint_states
-from .series import JointStateSeries
+from .cdr_arrays import encode_joint_states, group_joint_states, header_stamp
+from .series import CheckedBlock, JointStateSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite, check_names, reorder_index
 
@@ -77,6 +77,20 @@ def _field(msg: JointState, field: str, k: int) -> np.ndarray:
     return values
 
 
+def _layout(carried: Sequence[str], counts: dict[str, int],
+            names: Sequence[str] | None) -> tuple[tuple[str, ...], np.ndarray]:
+    """(names, column index) of messages carrying joints ``carried`` and ``counts`` values
+    per field: the checks of :func:`from_joint_state` that do not depend on the values."""
+    got = check_names(carried, 'JointState name')
+    for f in FIELDS:
+        if counts[f] not in (0, len(got)):
+            raise ValueError(f'JointState {f} has {counts[f]} values for {len(got)} names')
+    if names is None:
+        return got, np.arange(len(got))
+    names = check_names(names)
+    return names, reorder_index(got, names, 'JointState name')
+
+
 def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
                      require: Iterable[str] = (), allow_nan: bool = False) -> JointStateSample:
     """One JointState -> arrays, optionally reordered to ``names``.
@@ -85,19 +99,65 @@ def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
     observed angles; with ``allow_nan`` NaN entries pass as missing values, inf never);
     other fields may hold NaN.
     """
-    got = check_names(msg.name, 'JointState name')
-    k = len(got)
-    fields = {f: _field(msg, f, k) for f in FIELDS}
-    if names is not None:
-        names = check_names(names)
-        index = reorder_index(got, names, 'JointState name')
-        fields = {f: v[index] for f, v in fields.items()}
-        got = names
+    got, index = _layout(msg.name, {f: len(getattr(msg, f)) for f in FIELDS}, names)
+    k = len(msg.name)
+    fields = {f: _field(msg, f, k)[index] for f in FIELDS}
     for f in require:
         check_finite(fields[f], f'JointState {f}', got, allow_nan=allow_nan)
     return JointStateSample(stamp_ns=time_to_ns(msg.header.stamp), names=tuple(got),
                             frame_id=msg.header.frame_id,
                             **{f: np.array(v) for f, v in fields.items()})
+
+
+def joint_states_from_blobs(blobs: Sequence[bytes], names: Sequence[str],
+                            fields: Sequence[str], require: Iterable[str] = (),
+                            allow_nan: bool = False) -> CheckedBlock:
+    """CDR JointState messages (a live node's raw batch) -> :class:`CheckedBlock` of
+    ``fields`` (e.g. ``('effort', 'position')``: ``[n, 2k]``) for the joints ``names``.
+
+    Each message is checked exactly as :func:`from_joint_state` checks one (same reasons);
+    the messages that share a layout are decoded and checked as one array
+    (``msg_adapters.cdr_arrays.group_joint_states``), at ~1 us per message instead of the
+    ~60 us of rclpy's deserialisation plus :func:`from_joint_state`.
+    """
+    names = check_names(names)
+    require = tuple(require)
+    n, k = len(blobs), len(names)
+    groups, unreadable = group_joint_states(blobs)
+    stamp_ns = np.zeros(n, dtype=np.int64)
+    values = np.full((n, k * len(fields)), np.nan)
+    errors: list[str | None] = [None] * n
+    stamped = np.ones(n, dtype=bool)
+    for i, reason in unreadable.items():
+        errors[i] = reason
+        stamp = header_stamp(blobs[i])
+        stamped[i] = stamp is not None
+        stamp_ns[i] = stamp or 0
+    for group in groups:
+        stamp_ns[group.index] = group.stamp_ns
+        m = group.index.size
+        try:
+            _, index = _layout(group.names, {f: group.arrays[f].shape[1] for f in FIELDS},
+                               names)
+        except ValueError as exc:
+            for i in group.index:
+                errors[i] = str(exc)
+            continue
+        carried = {f: (group.arrays[f][:, index] if group.arrays[f].shape[1]
+                       else np.full((m, k), NOT_PROVIDED)) for f in FIELDS}
+        bad = np.zeros(m, dtype=bool)
+        for f in require:
+            a = carried[f]
+            row_bad = (np.isinf(a) if allow_nan else ~np.isfinite(a)).any(axis=1)
+            for r in np.flatnonzero(row_bad & ~bad):
+                try:
+                    check_finite(a[r], f'JointState {f}', names, allow_nan=allow_nan)
+                except ValueError as exc:
+                    errors[group.index[r]] = str(exc)
+            bad |= row_bad
+        good = group.index[~bad]
+        values[good] = np.hstack([carried[f][~bad] for f in fields])
+    return CheckedBlock(stamp_ns, values, tuple(errors), stamped)
 
 
 def _checked_blocks(stamps: Any, names: Sequence[str], position: Any, velocity: Any,

@@ -16,10 +16,13 @@ from typing import Any
 from geometry_msgs.msg import WrenchStamped
 import numpy as np
 
+from .cdr_arrays import group_wrenches, header_stamp
+from .series import CheckedBlock
 from .validation import as_matrix, as_vector, check_finite
 from .wrench import from_wrench_stamped, wrench_blobs, wrenches_from_arrays, wrenches_to_arrays
 
 PLANAR = ('force.x', 'force.y', 'torque.z')
+_CHECKED = 'WrenchStamped (force.x, force.y, torque.z)'   # what a refused value is called
 
 
 def planar_to_xyz(s: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -64,8 +67,42 @@ def from_planar_wrench(msg: WrenchStamped, frame_id: str | None = None,
     """
     sample = from_wrench_stamped(msg, frame_id, check=False)
     s = np.array([sample.force[0], sample.force[1], sample.torque[2]])
-    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR, allow_nan=allow_nan)
+    check_finite(s, _CHECKED, PLANAR, allow_nan=allow_nan)
     return sample.stamp_ns, s
+
+
+def planar_wrenches_from_blobs(blobs: Sequence[bytes], frame_id: str | None = None,
+                               allow_nan: bool = False) -> CheckedBlock:
+    """CDR WrenchStamped messages (a live node's raw batch) -> :class:`CheckedBlock` of
+    ``s[n, 3]``, each message checked exactly as :func:`from_planar_wrench` checks one (same
+    reasons), those sharing a layout as one array (``cdr_arrays.group_wrenches``)."""
+    n = len(blobs)
+    groups, unreadable = group_wrenches(blobs)
+    stamp_ns = np.zeros(n, dtype=np.int64)
+    values = np.full((n, 3), np.nan)
+    errors: list[str | None] = [None] * n
+    stamped = np.ones(n, dtype=bool)
+    for i, reason in unreadable.items():
+        errors[i] = reason
+        stamp = header_stamp(blobs[i])
+        stamped[i] = stamp is not None
+        stamp_ns[i] = stamp or 0
+    for group in groups:
+        stamp_ns[group.index] = group.stamp_ns
+        if frame_id is not None and group.frame_id != frame_id:
+            for i in group.index:
+                errors[i] = (f'WrenchStamped frame_id is {group.frame_id!r}, '
+                             f'expected {frame_id!r}')
+            continue
+        s = group.arrays['values'][:, [0, 1, 5]]
+        bad = (np.isinf(s) if allow_nan else ~np.isfinite(s)).any(axis=1)
+        for r in np.flatnonzero(bad):
+            try:
+                check_finite(s[r], _CHECKED, PLANAR, allow_nan=allow_nan)
+            except ValueError as exc:
+                errors[group.index[r]] = str(exc)
+        values[group.index[~bad]] = s[~bad]
+    return CheckedBlock(stamp_ns, values, tuple(errors), stamped)
 
 
 def planar_from_wrenches(msgs: Sequence[WrenchStamped], frame_id: str | None = None,
@@ -73,5 +110,5 @@ def planar_from_wrenches(msgs: Sequence[WrenchStamped], frame_id: str | None = N
     """``n`` messages -> (stamps ns ``[n]``, ``s[n, 3]``), vectorised."""
     series = wrenches_to_arrays(msgs, frame_id, check=False)
     s = np.column_stack([series.force[:, 0], series.force[:, 1], series.torque[:, 2]])
-    check_finite(s, 'WrenchStamped (force.x, force.y, torque.z)', PLANAR)
+    check_finite(s, _CHECKED, PLANAR)
     return series.stamp_ns, s

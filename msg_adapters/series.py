@@ -60,3 +60,23 @@ class WrenchSeries:
     def t(self) -> np.ndarray:
         """Header stamps in seconds (float64)."""
         return self.stamp_ns * 1e-9
+
+
+@dataclass(frozen=True)
+class CheckedBlock:
+    """``n`` messages of one topic read at once (a live node's batch), each checked as one
+    message alone would be: what it carried, or why it is refused.
+
+    ``values`` holds the columns the reader asked for (NaN rows where refused); ``errors[i]``
+    is None for an accepted message, else the reason (the ``ValueError`` text the
+    single-message adapter gives); ``stamped[i]`` says whether the header stamp could be
+    read at all (False only for a message too short to hold one: ``stamp_ns`` is 0 there).
+    """
+
+    stamp_ns: np.ndarray               # [n] int64 header stamps
+    values: np.ndarray                 # [n, k] float64
+    errors: tuple[str | None, ...]     # [n]
+    stamped: np.ndarray                # [n] bool
+
+    def __len__(self) -> int:
+        return int(self.stamp_ns.shape[0])

@@ -113,9 +113,11 @@ class TrialBook:
         self.published: dict[str, int] = {}
         self.first_published: dict[str, int] = {}
 
-    def saw(self, topic: str, stamp_ns: int) -> None:
+    def saw(self, topic: str, stamp_ns: int | None) -> None:
+        """One message of ``topic`` received (``stamp_ns`` None: its stamp unreadable)."""
         self.seen[topic] = self.seen.get(topic, 0) + 1
-        self.first_seen.setdefault(topic, int(stamp_ns))
+        if stamp_ns is not None:
+            self.first_seen.setdefault(topic, int(stamp_ns))
 
     def start(self) -> int:
         self.trial += 1

@@ -27,7 +27,8 @@ import time
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from msg_adapters.joint_state import from_joint_state, joint_state_blobs
+from msg_adapters.joint_state import from_joint_state, joint_state_blobs, joint_states_from_blobs
+from msg_adapters.series import CheckedBlock
 from nmt_ros.model.parameters import JOINTS, MUSCLES
 from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample
@@ -96,6 +97,10 @@ class MuscleTrackerNode(TrackerNode):
         sample = from_joint_state(msg, JOINTS, require=('position', 'velocity', 'effort'))
         return sample.stamp_ns, np.concatenate([sample.effort, sample.position,
                                                 sample.velocity])
+
+    def parse_block(self, topic: str, blobs: Sequence[bytes]) -> CheckedBlock:
+        return joint_states_from_blobs(blobs, JOINTS, ('effort', 'position', 'velocity'),
+                                       require=('position', 'velocity', 'effort'))
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
              received: float) -> None:

@@ -36,6 +36,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from msg_adapters.diagnostics import StatusRecord, from_diagnostic_array, to_diagnostic_array
+from msg_adapters.series import CheckedBlock
 from msg_adapters.stamps import time_to_ns
 from nmt_ros.model import compiled
 from nmt_ros.nodes.end_of_stream import STREAM_PART, TrialBook, end_of_stream_values
@@ -270,7 +271,7 @@ class TrackerNode(NmtNode):
             # 0.3 s of force-plate data past its mocap and rejected mocap samples as late)
             periods = {topic: gate.period_ns for topic, gate in self.gates.items()}
             for topic in sorted(self.INPUTS, key=lambda t: periods.get(t, 0)):
-                polled.add(topic, self.INPUTS[topic], qos, raw=False)
+                polled.add(topic, self.INPUTS[topic], qos, raw=True)
             # taken on a thread of their own: the middleware's history never overflows while
             # a batch is estimated (``input_thread``)
             self.polled = InputThread(polled, self.take_period_s)
@@ -300,21 +301,34 @@ class TrackerNode(NmtNode):
             self.taking = False
 
     def _take_batch(self) -> None:
-        order = {topic: k for k, topic in enumerate(self.INPUTS)}
-        batch = [(time_to_ns(msg.header.stamp), order[topic], n, topic, msg)
-                 for topic, taken in self.polled.take_all().items()
-                 for n, (msg, _info) in enumerate(taken)]
-        batch.sort(key=lambda item: item[:3])
+        taken = self.polled.take_all()
         if self.polled.overflowed and not self.input_overflow_said:
             self.input_overflow_said = True
             self.status.event(ERROR, f'more than {self.polled.max_messages} input messages '
                               'waiting: the node stopped taking more; the middleware keeps '
                               f'the newest {self.qos_depth} per topic, older ones are lost')
+        if not taken:
+            return
+        # each topic's raw messages decoded and checked as one array (``parse_block``), then
+        # handled one by one in (stamp, INPUTS order, arrival) order
+        rank = {topic: k for k, topic in enumerate(self.INPUTS)}
+        blocks = {topic: self.parse_block(topic, [blob for blob, _info in msgs])
+                  for topic, msgs in taken.items()}
+        topics = list(blocks)
+        stamps = np.concatenate([b.stamp_ns for b in blocks.values()])
+        which = np.concatenate([np.full(len(b), k) for k, b in enumerate(blocks.values())])
+        index = np.concatenate([np.arange(len(b)) for b in blocks.values()])
+        ranks = np.array([rank[t] for t in topics])[which]
         before = self.last_input
-        for *_, topic, msg in batch:
-            self.on_input(topic, msg)
-        if batch:
-            self.batch_done()
+        for j in np.lexsort((index, ranks, stamps)).tolist():
+            topic = topics[which[j]]
+            block, i = blocks[topic], int(index[j])
+            stamp = int(block.stamp_ns[i])
+            error = block.errors[i]
+            self.accept(topic, stamp if block.stamped[i] else None,
+                        None if error else (stamp, block.values[i]),
+                        f'{topic}: {error}' if error else None, time.monotonic())
+        self.batch_done()
         if self.last_input != before:       # idle counts from when the batch was handled
             self.last_input = time.monotonic()
 
@@ -325,6 +339,11 @@ class TrackerNode(NmtNode):
     # ------------------------------------------------------------------ hooks
     def parse(self, topic: str, msg: Any) -> tuple[int, np.ndarray]:
         """(stamp [ns], values) of an input message; ValueError rejects it."""
+        raise NotImplementedError
+
+    def parse_block(self, topic: str, blobs: Sequence[bytes]) -> CheckedBlock:
+        """The CDR messages of one batch of ``topic``, each checked as :meth:`parse` checks
+        one (values in the same columns, the same reasons for a refusal)."""
         raise NotImplementedError
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
@@ -345,15 +364,26 @@ class TrackerNode(NmtNode):
 
     # ------------------------------------------------------------------ inputs
     def on_input(self, topic: str, msg: Any) -> None:
+        """One typed message (a callback per message: ``take_period_s`` 0)."""
         received = time.monotonic()
-        self.status.receive(topic)
-        self.book.saw(topic, time_to_ns(msg.header.stamp))
         try:
-            stamp_ns, values = self.parse(topic, msg)
+            parsed, error = self.parse(topic, msg), None
         except ValueError as exc:
-            self.status.reject(topic, f'{topic}: {exc}')
+            parsed, error = None, f'{topic}: {exc}'
+        self.accept(topic, time_to_ns(msg.header.stamp), parsed, error, received)
+
+    def accept(self, topic: str, header_ns: int | None,
+               parsed: tuple[int, np.ndarray] | None, error: str | None,
+               received: float) -> None:
+        """One input message, parsed (``(stamp [ns], values)``) or refused (``error``): count
+        it (``header_ns``: its header stamp, None if unreadable), gate it, feed it."""
+        self.status.receive(topic)
+        self.book.saw(topic, header_ns)
+        if parsed is None:
+            self.status.reject(topic, error or f'{topic}: refused')
             self.notify()
             return
+        stamp_ns, values = parsed
         self.status.mark_active()
         self.last_input = received
         if not self.tracking:

@@ -40,8 +40,14 @@ from geometry_msgs.msg import WrenchStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from msg_adapters.joint_state import from_joint_state, joint_state_blobs
-from msg_adapters.planar import PLANAR, from_planar_wrench, planar_wrench_blobs
+from msg_adapters.joint_state import from_joint_state, joint_state_blobs, joint_states_from_blobs
+from msg_adapters.planar import (
+    PLANAR,
+    from_planar_wrench,
+    planar_wrench_blobs,
+    planar_wrenches_from_blobs,
+)
+from msg_adapters.series import CheckedBlock
 from nmt_ros.model.parameters import JOINTS, Q_NAMES, SEGMENTS
 from nmt_ros.model.subject import load_subject_model
 from nmt_ros.nodes.input_gate import Sample, TrialClock
@@ -210,6 +216,13 @@ class SkeletalTrackerNode(TrackerNode):
             sample = from_joint_state(msg, SEGMENTS, require=('position',), allow_nan=lenient)
             return sample.stamp_ns, sample.position
         return from_planar_wrench(msg, self.wrench_frame or None, allow_nan=lenient)
+
+    def parse_block(self, topic: str, blobs: Sequence[bytes]) -> CheckedBlock:
+        lenient = self.estimator == 'mhe'
+        if topic == MOCAP_SEGMENT_ANGLES:
+            return joint_states_from_blobs(blobs, SEGMENTS, ('position',),
+                                           require=('position',), allow_nan=lenient)
+        return planar_wrenches_from_blobs(blobs, self.wrench_frame or None, allow_nan=lenient)
 
     def feed(self, topic: str, samples: Sequence[Sample], stamp_ns: int,
              received: float) -> None:
