@@ -39,7 +39,9 @@ class PointMap:
             self._maps[n] = (buf, trigger, args, outs)
         return self._maps[n]
 
-    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+    def __call__(self, *args: np.ndarray, copy: bool = True) -> list[np.ndarray]:
+        """The outputs at the P points given (``copy`` False: views of the buffers, valid
+        until the next call with as many points; for a caller that uses them at once)."""
         n = np.shape(args[0])[0]
         _, trigger, ins, outs = self._map(n)
         for dst, src in zip(ins, args):
@@ -47,10 +49,8 @@ class PointMap:
         trigger()
         res = []
         for i, o in enumerate(outs):
-            if self.fn.size2_out(i) == 1:
-                res.append(o[:, 0, :].copy())
-            else:
-                res.append(o.transpose(0, 2, 1).copy())
+            view = o[:, 0, :] if self.fn.size2_out(i) == 1 else o.transpose(0, 2, 1)
+            res.append(view.copy() if copy else view)
         return res
 
 

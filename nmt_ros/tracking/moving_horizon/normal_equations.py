@@ -21,9 +21,10 @@ were. ``diffuse`` adds process noise to some of the prior's variables in informa
 from __future__ import annotations
 
 from dataclasses import dataclass
+import functools
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, get_lapack_funcs
+from scipy.linalg import get_lapack_funcs
 
 from nmt_ros.tracking.moving_horizon.residuals import NX
 
@@ -58,7 +59,6 @@ class NormalEquations:
         self.Hcx = np.zeros((self.n, nx))
         self.Hxx = np.zeros((nx, nx))
         self.gx = np.zeros(nx)
-        self._bi, self._bj = np.triu_indices(self.nb)
 
     def add_segments(self, seg: np.ndarray, H: np.ndarray, g: np.ndarray,
                      band: np.ndarray | None = None) -> None:
@@ -82,7 +82,7 @@ class NormalEquations:
         if m > self.nb:
             raise ValueError('a dense block wider than a segment does not fit the band')
         lo = first * self.nv
-        i, j = np.triu_indices(m)
+        i, j = _triu(m)
         self.ab[self.kd + i - j, lo + j] += H[:m, :m][i, j]
         self.g[lo:lo + m] += g[:m]
         self.Hcx[lo:lo + m] += H[:m, m:]
@@ -106,11 +106,10 @@ class NormalEquations:
         diag = np.concatenate([self.ab[kd], np.diag(self.Hxx)]) + damping
         d = 1.0 / np.sqrt(np.maximum(diag, 1e-300))
         dc, dx_ = d[:n], d[n:]
-        j = np.arange(n)
-        rows = j[None, :] - (kd - np.arange(kd + 1))[:, None]       # row of each band entry
+        rows, inside = _band_rows(n, kd)
         ab = self.ab.copy()
         ab[kd] += damping[:n]
-        ab *= np.where(rows >= 0, dc[np.maximum(rows, 0)], 0.0) * dc[None, :]
+        ab *= np.where(inside, dc[rows], 0.0) * dc[None, :]
         c, info = _PBTRF(ab, lower=0)
         if info != 0:
             raise np.linalg.LinAlgError(f'normal equations not positive definite ({info})')
@@ -125,33 +124,53 @@ class NormalEquations:
 #: Damping added relative to the diagonal of H in every solve (see ``solve``).
 RELATIVE_DAMPING = 1e-9
 
-_PBTRF, _PBTRS = get_lapack_funcs(('pbtrf', 'pbtrs'), (np.zeros((2, 2)),))
+_PBTRF, _PBTRS, _POTRF, _POTRS = get_lapack_funcs(('pbtrf', 'pbtrs', 'potrf', 'potrs'),
+                                                  (np.zeros((2, 2)),))
 def band_form(H: np.ndarray) -> np.ndarray:
     """Upper band form [S, nb, nb] of square blocks H [S, nb, nb] (half bandwidth nb - 1:
     row kd + i - j, column j holds H[i, j]; zero outside the block)."""
-    nb = H.shape[-1]
-    rows, cols = _block_band_index(nb, nb - 1)
-    return H[:, rows, cols] * _block_band_mask(nb, nb - 1)
+    S, nb = H.shape[0], H.shape[-1]
+    flat, inside = _block_band_index(nb)
+    band = np.zeros((S, nb * nb))
+    band[:, inside] = H.reshape(S, nb * nb)[:, flat]
+    return band.reshape(S, nb, nb)
 
 
-def _block_band_index(nb: int, kd: int) -> tuple[np.ndarray, np.ndarray]:
-    """(row, column) [kd + 1, nb] in an nb x nb block of each entry of its upper band form
-    (LAPACK: ab[kd + i - j, j] = A[i, j]); out-of-block entries point at (0, 0), masked."""
+@functools.cache
+def _block_band_index(nb: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat index into an nb x nb block, flat position in its band form [nb, nb]) of the
+    band entries inside the block (LAPACK, kd = nb - 1: ab[kd + i - j, j] = A[i, j], i <= j;
+    the other band entries are zero)."""
+    kd = nb - 1
     j = np.arange(nb)[None, :]
     i = j - (kd - np.arange(kd + 1))[:, None]
-    return np.where(i >= 0, i, 0), np.broadcast_to(j, i.shape)
+    inside = (i >= 0).ravel()
+    return (i * nb + j).ravel()[inside], np.flatnonzero(inside)
 
 
-def _block_band_mask(nb: int, kd: int) -> np.ndarray:
-    j = np.arange(nb)[None, :]
-    return (j - (kd - np.arange(kd + 1))[:, None] >= 0).astype(float)
+@functools.cache
+def _band_rows(n: int, kd: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row of each entry of an n-column upper band matrix [kd + 1, n], clipped to 0;
+    whether that row exists)."""
+    rows = np.arange(n)[None, :] - (kd - np.arange(kd + 1))[:, None]
+    return np.maximum(rows, 0), rows >= 0
+
+
+@functools.cache
+def _triu(m: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(m)
 
 
 def marginalize(H: np.ndarray, g: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
     """Eliminate the first m variables of the dense quadratic (H, g): (H_p, g_p) on the rest."""
+    if not (np.isfinite(H).all() and np.isfinite(g).all()):
+        raise np.linalg.LinAlgError('non-finite values in the marginalised quadratic')
     Hmm, Hmk, Hkk = H[:m, :m], H[:m, m:], H[m:, m:]
-    fac = cho_factor(Hmm + 1e-12 * np.eye(m) * max(1.0, float(np.abs(np.diag(Hmm)).max())))
-    X = cho_solve(fac, np.column_stack([Hmk, g[:m]]))
+    c, info = _POTRF(Hmm + 1e-12 * np.eye(m) * max(1.0, float(np.abs(np.diag(Hmm)).max())),
+                     lower=0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f'marginalised block not positive definite ({info})')
+    X, info = _POTRS(c, np.column_stack([Hmk, g[:m]]), lower=0)
     Hp = Hkk - Hmk.T @ X[:, :-1]
     gp = g[m:] - Hmk.T @ X[:, -1]
     return 0.5 * (Hp + Hp.T), gp

@@ -228,7 +228,9 @@ class SegmentKernel:
         self.wrench_capacity = spec.wrench_capacity
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
-        return self.map(*args)
+        """The kernel's outputs per segment: views of its buffers, valid until the next call
+        (``SlidingWindow.evaluate`` adds them up at once)."""
+        return self.map(*args, copy=False)
 
 
 _KERNELS: dict[tuple, tuple] = {}

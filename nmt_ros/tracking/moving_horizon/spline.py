@@ -19,17 +19,20 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def basis(u: np.ndarray, dt: float) -> np.ndarray:
-    """Weights [P, 4 orders, 4 control points]: value and 1st-3rd time derivatives (1/s^k)
-    of the four control points active at local coordinates ``u`` [P] in [0, 1)."""
+def basis(u: np.ndarray, dt: float, orders: int = 4) -> np.ndarray:
+    """Weights [P, orders, 4 control points]: value and the first ``orders`` - 1 time
+    derivatives (1/s^k, at most the 3rd) of the four control points active at local
+    coordinates ``u`` [P] in [0, 1)."""
     u = np.asarray(u, dtype=float)
     u2, u3 = u * u, u * u * u
-    one = np.ones_like(u)
-    b0 = np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1, u3], -1)
-    b1 = np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3, 3 * u2], -1) / dt
-    b2 = np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2
-    b3 = np.stack([-6 * one, 18 * one, -18 * one, 6 * one], -1) / dt ** 3
-    return np.stack([b0, b1, b2, b3], 1) / 6.0
+    rows = [lambda: np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1,
+                              u3], -1),
+            lambda: np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3,
+                              3 * u2], -1) / dt,
+            lambda: np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2,
+            lambda: np.broadcast_to(np.array([-6.0, 18.0, -18.0, 6.0]) / dt ** 3,
+                                    u.shape + (4,))]
+    return np.stack([row() for row in rows[:orders]], 1) / 6.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,7 @@ def evaluate(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, orders: i
     """Spline values [P, orders, k] at instants t from control points C [n, k] whose first
     one has global index ``first``; orders = 1 (value), 2 (+ rate) or 3 (+ acceleration)."""
     j, u = grid.locate(t)
-    B = basis(u, grid.dt)[:, :orders]
+    B = basis(u, grid.dt, orders)
     idx = (j - first)[:, None] + np.arange(4)[None, :]
     if idx.min() < 0 or idx.max() >= C.shape[0]:
         raise IndexError('instants outside the control points given')

@@ -235,16 +235,22 @@ class SlidingWindow:
         H, g = np.zeros((S, n, n)), np.zeros((S, n))
         cost, rows = np.zeros(S), np.zeros((S, 4))
         for call in range(max(len(ang), len(wr))):
-            parts = []
-            slots = np.unique(np.concatenate([b[call][0] for b in (ang, wr) if call < len(b)]))
-            for batches, cap, k in ((ang, kern.angle_capacity, 4), (wr, kern.wrench_capacity, 3)):
-                u = np.zeros((slots.size, cap))
-                y, m = np.zeros((slots.size, cap * k)), np.zeros((slots.size, cap * k))
-                if call < len(batches):
-                    bs, bu, by, bm = batches[call]
-                    where = np.searchsorted(slots, bs)
-                    u[where], y[where], m[where] = bu, by, bm
-                parts += [u, y, m]
+            if call == 0:       # the first batches of both streams cover every segment
+                slots = np.arange(S)
+                parts = [*ang[0][1:], *wr[0][1:]]
+            else:
+                parts = []
+                slots = np.unique(np.concatenate([b[call][0] for b in (ang, wr)
+                                                  if call < len(b)]))
+                for batches, cap, k in ((ang, kern.angle_capacity, 4),
+                                        (wr, kern.wrench_capacity, 3)):
+                    u = np.zeros((slots.size, cap))
+                    y, m = np.zeros((slots.size, cap * k)), np.zeros((slots.size, cap * k))
+                    if call < len(batches):
+                        bs, bu, by, bm = batches[call]
+                        where = np.searchsorted(slots, bs)
+                        u[where], y[where], m[where] = bu, by, bm
+                    parts += [u, y, m]
             ones = np.ones((slots.size, 1))
             out = kern(z[slots, :NB], z[slots, NB:], *parts, dynamics_scale * ones,
                        ones * (call == 0))
@@ -282,12 +288,13 @@ class SlidingWindow:
         H, g = p.shifted(z)
         return 0.5 * float(d @ p.H @ d) - float(p.g @ d), H, g
 
-    def _models(self, C: np.ndarray, plate: np.ndarray,
+    def _models(self, C: np.ndarray, plate: np.ndarray, count: int | None = None,
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Every window segment's kept model at (C, plate): (segments [S], H [S, ...],
-        cost [S], -gradient [S, NB + NX])."""
-        segs = self.segments
-        slot = slice(self.first - self.base, self.last + 1 - self.base)
+        """Every window segment's kept model at (C, plate) (``count``: the oldest ``count``
+        segments' only): (segments [S], H [S, ...], cost [S], -gradient [S, NB + NX])."""
+        n = self.n_seg if count is None else min(count, self.n_seg)
+        segs = np.arange(self.first, self.first + n)
+        slot = slice(self.first - self.base, self.first + n - self.base)
         if (self.lin_seg[slot] != segs).any():
             missing = segs[self.lin_seg[slot] != segs]
             self.keep(self.evaluate(missing, self.C, self.plate))
@@ -300,18 +307,25 @@ class SlidingWindow:
         return segs, H, cost, g - Hd
 
     def model_cost(self, C: np.ndarray, plate: np.ndarray,
-                   exact: Linearisation | None = None) -> float:
-        """Cost of (C, plate): kept segment models, with ``exact`` ones replacing them."""
-        segs, _, cost, _ = self._models(C, plate)
+                   exact: Linearisation | None = None,
+                   models: tuple[np.ndarray, ...] | None = None) -> float:
+        """Cost of (C, plate): kept segment models (``models``: ``_models(C, plate)`` if
+        already made), with ``exact`` ones replacing them."""
+        segs, _, cost, _ = models if models is not None else self._models(C, plate)
+        if exact is not None:
+            cost = cost.copy()
         if exact is not None:
             cost[exact.segments - self.first] = exact.cost
         prior = self._prior_at(C, plate)
         return float(cost.sum()) + (prior[0] if prior is not None else 0.0)
 
     # ------------------------------------------------------------------ solve
-    def normal_equations(self) -> NormalEquations:
+    def normal_equations(self, models: tuple[np.ndarray, ...] | None = None,
+                         ) -> NormalEquations:
+        """The Gauss-Newton system at (C, plate) (``models``: ``_models(C, plate)`` if
+        already made)."""
         ne = NormalEquations(self.C.shape[0], NV, NX)
-        segs, H, _, g = self._models(self.C, self.plate)
+        segs, H, _, g = models if models is not None else self._models(self.C, self.plate)
         band = self.lin_band[self.first - self.base:self.last + 1 - self.base]
         ne.add_segments(segs - self.first, H, g, band)
         prior = self._prior_at(self.C, self.plate)
@@ -328,8 +342,9 @@ class SlidingWindow:
         """Re-linearise ``segments``, take one damped Gauss-Newton step on the whole window
         and (``check``) keep it only if it lowers the cost. Returns (cost before, after)."""
         self.relinearise(segments, dynamics_scale)
-        before = self.model_cost(self.C, self.plate)
-        ne = self.normal_equations()
+        models = self._models(self.C, self.plate)
+        before = self.model_cost(self.C, self.plate, models=models)
+        ne = self.normal_equations(models)
         dz = ne.solve(damping * self.step_metric())
         C_new = self.C + dz[:-NX].reshape(self.C.shape)
         plate_new = self.plate + dz[-NX:]
@@ -381,7 +396,7 @@ class SlidingWindow:
         m = segment - self.first
         if m <= 0:
             return
-        segs, Hs, _, gs = self._models(self.C, self.plate)
+        segs, Hs, _, gs = self._models(self.C, self.plate, m)
         n = (m + 3) * NV
         H = np.zeros((n + NX, n + NX))
         g = np.zeros(n + NX)
