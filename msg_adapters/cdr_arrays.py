@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+import functools
 import struct
 
 import numpy as np
@@ -100,9 +101,10 @@ def _floats(matrix: np.ndarray, offset: int, n: int, little: bool) -> np.ndarray
     return block.view(('<' if little else '>') + 'f8').astype(np.float64, copy=False)
 
 
-def _uniform_rows(blobs: Sequence[bytes],
-                  structural: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    """Stack the messages that have the first message's length and structure.
+def _uniform_rows(blobs: Sequence[bytes], structural: list[tuple[int, int]],
+                  index: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Stack the messages that have the first message's length and structure (``index``:
+    the structural byte positions, if already listed).
 
     Returns the ``[m, nbytes]`` matrix of those messages and their boolean mask over ``blobs``.
     """
@@ -111,7 +113,8 @@ def _uniform_rows(blobs: Sequence[bytes],
     same_len = lengths == length
     chosen = blobs if same_len.all() else [b for b, ok in zip(blobs, same_len) if ok]
     matrix = np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(len(chosen), length)
-    index = np.concatenate([np.arange(a, b) for a, b in structural])
+    if index is None:
+        index = np.concatenate([np.arange(a, b) for a, b in structural])
     same_struct = (matrix[:, index] == matrix[0, index]).all(axis=1)
     mask = np.zeros(len(blobs), dtype=bool)
     mask[np.flatnonzero(same_len)[same_struct]] = True
@@ -235,7 +238,32 @@ def header_stamp(blob: bytes) -> int | None:
     return sec * 1_000_000_000 + nanosec
 
 
-def _groups(blobs: Sequence[bytes], parse: Callable[[bytes], dict],
+#: layouts seen: (kind, message length) -> [(structural byte positions, their bytes, parse)]
+_LAYOUTS: dict[tuple[str, int], list[tuple[np.ndarray, bytes, dict]]] = {}
+
+
+def _layout_of(kind: str, blob: bytes, parse: Callable[[bytes], dict]) -> dict:
+    """``parse(blob)``, or the parse of an earlier message with the same length and the same
+    structural bytes (string lengths and characters, sequence counts, encapsulation): the
+    parse reads exactly those bytes to find its way, so it would take the same path (a live
+    node decodes a small batch of one layout every 10 ms; parsing its first message in
+    Python cost more than decoding the batch)."""
+    known = _LAYOUTS.setdefault((kind, len(blob)), [])
+    if known:
+        raw = np.frombuffer(blob, dtype=np.uint8)
+        for index, expected, parsed in known:
+            if raw[index].tobytes() == expected:
+                return parsed
+    parsed = parse(blob)
+    index = np.concatenate([np.arange(a, b) for a, b in parsed['structural']])
+    parsed['structural_index'] = index
+    if len(known) >= 4:
+        known.pop(0)
+    known.append((index, np.frombuffer(blob, dtype=np.uint8)[index].tobytes(), parsed))
+    return parsed
+
+
+def _groups(kind: str, blobs: Sequence[bytes], parse: Callable[[bytes], dict],
             columns: Callable[[np.ndarray, dict], dict[str, np.ndarray]],
             ) -> tuple[list[LayoutGroup], dict[int, str]]:
     """Group ``blobs`` by layout: the messages laid out as the first readable one are
@@ -246,7 +274,7 @@ def _groups(blobs: Sequence[bytes], parse: Callable[[bytes], dict],
     first = None
     for i, blob in enumerate(blobs):
         try:
-            first = (i, parse(blob))
+            first = (i, _layout_of(kind, blob, parse))
             break
         except (ValueError, UnicodeDecodeError, struct.error) as exc:
             unreadable[i] = f'unreadable CDR message: {exc}'
@@ -254,7 +282,7 @@ def _groups(blobs: Sequence[bytes], parse: Callable[[bytes], dict],
         return groups, unreadable
     start, parsed = first
     rest = blobs[start:]
-    matrix, fast = _uniform_rows(rest, parsed['structural'])
+    matrix, fast = _uniform_rows(rest, parsed['structural'], parsed.get('structural_index'))
     fast_index = np.flatnonzero(fast) + start
     groups.append(LayoutGroup(fast_index, _stamps(matrix, parsed['little']),
                               parsed['frame_id'], parsed.get('names', ()),
@@ -285,7 +313,7 @@ def group_joint_states(blobs: Sequence[bytes]) -> tuple[list[LayoutGroup], dict[
                     matrix.shape[0], values.size)
                 for f, (offset, values) in first['fields'].items()}
 
-    return _groups(blobs, parse, columns)
+    return _groups('JointState', blobs, parse, columns)
 
 
 def group_wrenches(blobs: Sequence[bytes]) -> tuple[list[LayoutGroup], dict[int, str]]:
@@ -299,7 +327,7 @@ def group_wrenches(blobs: Sequence[bytes]) -> tuple[list[LayoutGroup], dict[int,
     def columns(matrix: np.ndarray, first: dict) -> dict[str, np.ndarray]:
         return {'values': _floats(matrix, first['offset'], 6, first['little'])}
 
-    return _groups(blobs, parse, columns)
+    return _groups('WrenchStamped', blobs, parse, columns)
 
 
 # ---------------------------------------------------------------------------- encoding
@@ -356,12 +384,10 @@ def _fill(template: bytes, stamp_ns: np.ndarray,
     return [flat[i * row:(i + 1) * row] for i in range(n)]
 
 
-def encode_joint_states(stamp_ns: np.ndarray, names: Sequence[str], position: np.ndarray,
-                        velocity: np.ndarray, effort: np.ndarray,
-                        frame_id: str = '') -> list[bytes]:
-    """``sensor_msgs/msg/JointState`` CDR messages (little endian, padding zero) from stamps
-    [n] (ns) and [n, k] position, velocity, effort for the k ``names`` (already validated:
-    ``msg_adapters.joint_state.joint_state_blobs`` is the checked entry point)."""
+@functools.lru_cache(maxsize=64)
+def _joint_state_template(names: tuple[str, ...], frame_id: str) -> tuple[bytes, dict]:
+    """A JointState of ``names`` with every array one value per name, zeros (CDR), and its
+    fields' (offset, values)."""
     k = len(names)
     w = _Writer()
     w.header(frame_id)
@@ -372,7 +398,27 @@ def encode_joint_states(stamp_ns: np.ndarray, names: Sequence[str], position: np
         w.uint32(k)
         w.float64s(k)
     template = w.done()
-    fields = _parse_joint_state(template)['fields']
+    return template, _parse_joint_state(template)['fields']
+
+
+@functools.lru_cache(maxsize=64)
+def _wrench_template(frame_id: str) -> tuple[bytes, int]:
+    """A WrenchStamped of zeros (CDR) and the offset of its six values."""
+    w = _Writer()
+    w.header(frame_id)
+    w.float64s(6)
+    template = w.done()
+    return template, _parse_wrench(template)['offset']
+
+
+def encode_joint_states(stamp_ns: np.ndarray, names: Sequence[str], position: np.ndarray,
+                        velocity: np.ndarray, effort: np.ndarray,
+                        frame_id: str = '') -> list[bytes]:
+    """``sensor_msgs/msg/JointState`` CDR messages (little endian, padding zero) from stamps
+    [n] (ns) and [n, k] position, velocity, effort for the k ``names`` (already validated:
+    ``msg_adapters.joint_state.joint_state_blobs`` is the checked entry point)."""
+    k = len(names)
+    template, fields = _joint_state_template(tuple(names), frame_id)
     return _fill(template, stamp_ns, [(fields[f][0], np.asarray(v, dtype=float).reshape(-1, k))
                                       for f, v in (('position', position),
                                                    ('velocity', velocity),
@@ -384,11 +430,7 @@ def encode_wrenches(stamp_ns: np.ndarray, force: np.ndarray, torque: np.ndarray,
     """``geometry_msgs/msg/WrenchStamped`` CDR messages (little endian, padding zero) from
     stamps [n] (ns), force and torque [n, 3] (already validated: see
     ``msg_adapters.wrench.wrench_blobs``)."""
-    w = _Writer()
-    w.header(frame_id)
-    w.float64s(6)
-    template = w.done()
-    offset = _parse_wrench(template)['offset']
+    template, offset = _wrench_template(frame_id)
     values = np.hstack([np.asarray(force, dtype=float).reshape(-1, 3),
                         np.asarray(torque, dtype=float).reshape(-1, 3)])
     return _fill(template, stamp_ns, [(offset, values)])

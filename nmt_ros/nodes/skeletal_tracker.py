@@ -263,8 +263,9 @@ class SkeletalTrackerNode(TrackerNode):
                 self.before_start += 1
                 self.status.extra['before_start'] = self.before_start
                 continue
-            gaps = np.flatnonzero(np.isnan(sample.values))
-            if gaps.size:
+            total = sample.values.sum()        # not NaN: no value missing (the cheap test)
+            gaps = np.flatnonzero(np.isnan(sample.values)) if total != total else ()
+            if len(gaps):
                 self.masked += gaps.size
                 self.status.extra['missing_values'] = self.masked
                 if not self.in_gap.get(topic):      # said once per run of missing samples
@@ -273,7 +274,7 @@ class SkeletalTrackerNode(TrackerNode):
                                       'missing, bridged by the estimator',
                                       t=self.clock.t(sample.stamp_ns))
                     self.notify()
-            self.in_gap[topic] = bool(gaps.size)
+            self.in_gap[topic] = bool(len(gaps))
             try:
                 add(self.clock.t(sample.stamp_ns), sample.values)
             except ValueError as exc:          # a sample later than the update it belongs to
