@@ -116,6 +116,8 @@ def _uniform_rows(blobs: Sequence[bytes], structural: list[tuple[int, int]],
     if index is None:
         index = np.concatenate([np.arange(a, b) for a, b in structural])
     same_struct = (matrix[:, index] == matrix[0, index]).all(axis=1)
+    if same_struct.all() and len(chosen) == len(blobs):
+        return matrix, np.ones(len(blobs), dtype=bool)
     mask = np.zeros(len(blobs), dtype=bool)
     mask[np.flatnonzero(same_len)[same_struct]] = True
     return matrix[same_struct], mask
@@ -283,11 +285,12 @@ def _groups(kind: str, blobs: Sequence[bytes], parse: Callable[[bytes], dict],
     start, parsed = first
     rest = blobs[start:]
     matrix, fast = _uniform_rows(rest, parsed['structural'], parsed.get('structural_index'))
-    fast_index = np.flatnonzero(fast) + start
+    every = fast.all()
+    fast_index = np.arange(start, len(blobs)) if every else np.flatnonzero(fast) + start
     groups.append(LayoutGroup(fast_index, _stamps(matrix, parsed['little']),
                               parsed['frame_id'], parsed.get('names', ()),
                               columns(matrix, parsed)))
-    for i in np.flatnonzero(~fast) + start:
+    for i in () if every else np.flatnonzero(~fast) + start:
         try:
             one = parse(blobs[i])
         except (ValueError, UnicodeDecodeError, struct.error) as exc:

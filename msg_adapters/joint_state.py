@@ -20,6 +20,7 @@ from __future__ import annotations
 import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+import functools
 from typing import Any
 
 import numpy as np
@@ -109,6 +110,21 @@ def from_joint_state(msg: JointState, names: Sequence[str] | None = None,
                             **{f: np.array(v) for f, v in fields.items()})
 
 
+@functools.lru_cache(maxsize=64)
+def _checked_names(names: tuple[str, ...]) -> tuple[str, ...]:
+    return check_names(names)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_layout(carried: tuple[str, ...], counts: tuple[int, ...],
+                   names: tuple[str, ...]) -> tuple[np.ndarray | None, str | None]:
+    """(column index, None) of :func:`_layout`, or (None, the reason it refuses)."""
+    try:
+        return _layout(carried, dict(zip(FIELDS, counts)), names)[1], None
+    except ValueError as exc:
+        return None, str(exc)
+
+
 def joint_states_from_blobs(blobs: Sequence[bytes], names: Sequence[str],
                             fields: Sequence[str], require: Iterable[str] = (),
                             allow_nan: bool = False) -> CheckedBlock:
@@ -120,7 +136,7 @@ def joint_states_from_blobs(blobs: Sequence[bytes], names: Sequence[str],
     (``msg_adapters.cdr_arrays.group_joint_states``), at ~1 us per message instead of the
     ~60 us of rclpy's deserialisation plus :func:`from_joint_state`.
     """
-    names = check_names(names)
+    names = _checked_names(tuple(names))
     require = tuple(require)
     n, k = len(blobs), len(names)
     groups, unreadable = group_joint_states(blobs)
@@ -136,27 +152,28 @@ def joint_states_from_blobs(blobs: Sequence[bytes], names: Sequence[str],
     for group in groups:
         stamp_ns[group.index] = group.stamp_ns
         m = group.index.size
-        try:
-            _, index = _layout(group.names, {f: group.arrays[f].shape[1] for f in FIELDS},
-                               names)
-        except ValueError as exc:
+        index, problem = _cached_layout(
+            group.names, tuple(group.arrays[f].shape[1] for f in FIELDS), names)
+        if problem is not None:
             for i in group.index:
-                errors[i] = str(exc)
+                errors[i] = problem
             continue
         carried = {f: (group.arrays[f][:, index] if group.arrays[f].shape[1]
-                       else np.full((m, k), NOT_PROVIDED)) for f in FIELDS}
+                       else np.full((m, k), NOT_PROVIDED)) for f in set(fields) | set(require)}
         bad = np.zeros(m, dtype=bool)
-        for f in require:
+        for f in require:          # a row's reason: its first required field that fails
             a = carried[f]
-            row_bad = (np.isinf(a) if allow_nan else ~np.isfinite(a)).any(axis=1)
-            for r in np.flatnonzero(row_bad & ~bad):
-                try:
-                    check_finite(a[r], f'JointState {f}', names, allow_nan=allow_nan)
-                except ValueError as exc:
-                    errors[group.index[r]] = str(exc)
-            bad |= row_bad
-        good = group.index[~bad]
-        values[good] = np.hstack([carried[f][~bad] for f in fields])
+            new = (np.isinf(a) if allow_nan else ~np.isfinite(a)).any(axis=1) & ~bad
+            if new.any():
+                for r in np.flatnonzero(new):
+                    try:
+                        check_finite(a[r], f'JointState {f}', names, allow_nan=allow_nan)
+                    except ValueError as exc:
+                        errors[group.index[r]] = str(exc)
+                bad |= new
+        keep = group.index[~bad] if bad.any() else group.index
+        rows = ~bad if bad.any() else slice(None)
+        values[keep] = np.hstack([carried[f][rows] for f in fields])
     return CheckedBlock(stamp_ns, values, tuple(errors), stamped)
 
 
