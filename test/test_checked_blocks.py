@@ -152,3 +152,25 @@ def test_wrench_block_says_what_each_message_says(allow_nan):
     assert block.errors[-1].startswith('unreadable CDR message') and not block.stamped[-1]
     anyframe = planar_wrenches_from_blobs(blobs[:-1], None, allow_nan=True)
     assert anyframe.errors[9] is None and anyframe.errors[10] is None
+
+
+def test_a_layout_seen_before_is_not_mistaken_for_another_of_the_same_length():
+    """Decoding caches a layout by its length and structural bytes: names of the same length
+    (another joint) or another frame of the same length must not reuse it."""
+    seen = [serialize_message(joint_state(3_000_000_000 + i)) for i in range(3)]
+    other = [serialize_message(joint_state(3_100_000_000 + i,
+                                            names=('foot', 'shank', 'thigh', 'hap')))
+             for i in range(3)]
+    assert len(seen[0]) == len(other[0])
+    for _ in range(2):                  # the second round decodes from the cache
+        ok = joint_states_from_blobs(seen, NAMES, ('position',), require=('position',))
+        assert all(e is None for e in ok.errors)
+        bad = joint_states_from_blobs(other, NAMES, ('position',), require=('position',))
+        assert all('missing' in e and 'hat' in e for e in bad.errors)
+    plates = [serialize_message(wrench_stamped(4_000_000_000, np.ones(6), frame=f))
+              for f in ('plate_a', 'plate_b')]
+    assert len(plates[0]) == len(plates[1])
+    for _ in range(2):
+        assert planar_wrenches_from_blobs(plates[:1], 'plate_a').errors == (None,)
+        assert planar_wrenches_from_blobs(plates[1:], 'plate_a').errors[0].startswith(
+            "WrenchStamped frame_id is 'plate_b'")

@@ -106,6 +106,20 @@ def test_marginalisation_is_the_schur_complement_and_keeps_the_minimiser():
     z = np.linalg.solve(H, g)
     assert np.allclose(np.linalg.solve(Hp, gp), z[5:], rtol=1e-9)
 
+    H[0, 1] = H[1, 0] = np.nan          # a diverged step's quadratic: refused, not factored
+    with pytest.raises(np.linalg.LinAlgError, match='non-finite'):
+        marginalize(H, g, 5)
+    J[:, 0] = 0.0                       # a direction nothing determines
+    with pytest.raises(np.linalg.LinAlgError, match='not positive definite'):
+        marginalize(J.T @ J - 1e-3 * np.eye(12), g, 5)
+
+
+def test_spline_weights_of_fewer_orders_are_the_leading_ones():
+    u = np.linspace(0.0, 0.999, 17)
+    full = spline.basis(u, 1 / 120)
+    for orders in (1, 2, 3):
+        assert np.array_equal(spline.basis(u, 1 / 120, orders), full[:, :orders])
+
 
 def test_diffusion_adds_process_noise_to_the_covariance():
     J = RNG.normal(size=(20, 6))

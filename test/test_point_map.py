@@ -42,3 +42,17 @@ def test_batch_equals_point_by_point_for_dense_and_sparse_functions(model) -> No
     want = _point_by_point(model.contact_outputs, q, qd, np.tile(x0, (n, 1)))
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
+
+
+def test_views_of_the_buffers_hold_the_outputs_until_the_next_call(model) -> None:
+    """``copy=False`` hands out the buffers themselves: equal to the copies, overwritten by
+    the next call with as many points (what ``SegmentKernel``'s single caller relies on)."""
+    rng = np.random.default_rng(5)
+    pm = PointMap(model.moment_arm_matrix)
+    a, b = rng.normal(size=(7, 3)) * 0.4, rng.normal(size=(7, 3)) * 0.4
+    view = pm(a, copy=False)[0]
+    np.testing.assert_array_equal(view, pm(a)[0])
+    kept = view.copy()
+    pm(b, copy=False)
+    np.testing.assert_array_equal(view, pm(b)[0])
+    assert not np.array_equal(view, kept)
