@@ -644,13 +644,15 @@ def _fill_nan(t: np.ndarray, y: np.ndarray) -> np.ndarray:
 class MovingHorizonRun:
     """The estimator run over a whole recording (``estimate``): the refined and low-latency
     estimates as Stage-1 records on the force-plate instants, the estimator's events and the
-    CPU time of each update [s]."""
+    CPU time of each poll that updated [s] and the data time [s] of the sample that let it
+    run (``update_t_s``)."""
 
     refined: SKTResult
     low_latency: SKTResult
     events: list[EstimatorEvent]
     update_cpu_s: np.ndarray
     restarts: int
+    update_t_s: np.ndarray | None = None
 
 
 def _stage1_record(model: JumperModel, blocks: list[EstimateBlock], events: list,
@@ -686,7 +688,7 @@ def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
     order = sorted([(float(t), 0, i) for i, t in enumerate(t_angles)]
                    + [(float(t), 1, i) for i, t in enumerate(t_wrench)])
     blocks: list[EstimateBlock] = []
-    cpu = []
+    cpu, when = [], []
     for t, k, i in order:
         if k == 0:
             est.add_angles(t, angles[i])
@@ -697,6 +699,7 @@ def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
         blocks += est.poll()
         if est.updates != n:
             cpu.append(time.process_time() - c)
+            when.append(t)
     blocks += est.finish()
     total = time.process_time() - c0
     refined = _stage1_record(model, [b for b in blocks if b.kind == 'refined'], est.events,
@@ -704,4 +707,5 @@ def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
     low = _stage1_record(model, [b for b in blocks if b.kind == 'low_latency'], est.events,
                          total)
     return MovingHorizonRun(refined=refined, low_latency=low, events=est.events,
-                            update_cpu_s=np.array(cpu), restarts=est.restarts)
+                            update_cpu_s=np.array(cpu), restarts=est.restarts,
+                            update_t_s=np.array(when))
