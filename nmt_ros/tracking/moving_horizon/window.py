@@ -109,6 +109,10 @@ class SlidingWindow:
         self.lin_z = np.zeros((size, n))
         self.lin_cost = np.zeros(size)
         self.lin_rows = np.zeros((size, 4))
+        # the last checked step's exact linearisation, kept: (C, plate, what it covers); a
+        # step from there needs no re-linearisation of the same segments
+        self._fresh: tuple[np.ndarray, np.ndarray, tuple] | None = None
+        self._data_version = 0
 
     # ------------------------------------------------------------------ shape
     @property
@@ -188,6 +192,7 @@ class SlidingWindow:
             self.angles.append(*angles)
         if len(wrench[0]):
             self.wrench.append(*wrench)
+        self._data_version += 1
 
     # ------------------------------------------------------------------ linearise
     def _pack(self, samples: Samples, segments: np.ndarray, capacity: int, k: int,
@@ -341,7 +346,13 @@ class SlidingWindow:
              check: bool = True) -> tuple[float, float]:
         """Re-linearise ``segments``, take one damped Gauss-Newton step on the whole window
         and (``check``) keep it only if it lowers the cost. Returns (cost before, after)."""
-        self.relinearise(segments, dynamics_scale)
+        segments = np.asarray(segments, dtype=np.int64)
+        covers = (segments.tobytes(), float(dynamics_scale), self._data_version)
+        fresh = self._fresh
+        if not (fresh is not None and fresh[0] is self.C and fresh[1] is self.plate
+                and fresh[2] == covers
+                and (self.lin_seg[segments - self.base] == segments).all()):
+            self.relinearise(segments, dynamics_scale)
         models = self._models(self.C, self.plate)
         before = self.model_cost(self.C, self.plate, models=models)
         ne = self.normal_equations(models)
@@ -355,7 +366,8 @@ class SlidingWindow:
         after = self.model_cost(C_new, plate_new, exact)
         if np.isfinite(after) and after < before:
             self.C, self.plate = C_new, plate_new
-            self.keep(exact)
+            self.keep(exact)       # = what re-linearising these segments here would give
+            self._fresh = (self.C, self.plate, covers)
         return before, after
 
     def solve(self, segments: np.ndarray, iterations: int, damping: float,
