@@ -393,6 +393,32 @@ def test_latency_is_measured_between_receive_times_or_publish_times():
         latency_ms(est, obs, clock='wall')
 
 
+def test_latency_by_phase_puts_each_estimate_in_its_truth_phase():
+    """Each estimate's delay lands in the phase of the truth at its stamp: delays made to
+    depend on the phase come back as each phase's percentiles."""
+    from nmt_ros.io.trial_bag import read_truth
+    from nmt_ros.study.phase_scores import truth_phases
+    from nmt_ros.study.recording_evaluation import TopicTimes, latency_by_phase
+
+    truth = read_truth(ROOT / 'bags' / 'routine')
+    masks = truth_phases(truth)
+    epoch = 5_000_000_000
+    stamps = epoch + np.rint(truth.t * 1e9).astype(np.int64)
+    delay_ms = {'quiet': 80.0, 'moving': 90.0, 'flight': 300.0, 'landing': 500.0}
+    delay = np.zeros(truth.t.size)
+    for name, d in delay_ms.items():
+        delay[masks[name]] = d
+    assert (delay > 0).all()                  # every instant is in one of the four
+    obs = TopicTimes(stamps, publish_ns=stamps + 1000, log_ns=stamps + 2000)
+    est = TopicTimes(stamps, publish_ns=stamps, log_ns=stamps + 2000
+                     + np.rint(delay * 1e6).astype(np.int64))
+    got = latency_by_phase(est, obs, truth, epoch)
+    for name, d in delay_ms.items():
+        assert got[name]['n'] == masks[name].sum() > 0
+        assert got[name]['p50_ms'] == pytest.approx(d) and got[name]['max_ms'] == pytest.approx(d)
+    assert got['all']['n'] == truth.t.size
+
+
 def test_truth_between_keeps_the_replayed_span():
     """A demo replaying the first seconds of a long record is scored on those seconds."""
     from nmt_ros.io.trial_bag import read_truth

@@ -34,6 +34,7 @@ from nmt_ros.io.bags import bag_info, read_arrays, read_bag, read_raw
 from nmt_ros.model.parameters import JOINTS, MUSCLES, Q_NAMES
 
 if TYPE_CHECKING:
+    from nmt_ros.records import Truth
     from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
 DATA_TOPICS = topics.OBSERVATIONS + topics.SKELETAL_OUTPUTS + topics.MUSCLE_OUTPUTS
@@ -59,27 +60,52 @@ def topic_times(bag: str | os.PathLike, topic: str) -> TopicTimes:
                       np.asarray(log, dtype=np.int64))
 
 
-def latency_ms(estimate: TopicTimes, observation: TopicTimes,
-               clock: str = 'receive') -> dict[str, float]:
-    """Delay [ms] of each estimate after the observation with the same stamp: between the
-    recorder's receive times of the two (``clock`` 'receive', one clock, what a consumer of
-    both topics sees) or their publishers' source times ('publish')."""
+def delays_ms(estimate: TopicTimes, observation: TopicTimes,
+              clock: str = 'receive') -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns], delays [ms]) of the estimates that have an observation with the same
+    stamp: between the recorder's receive times of the two (``clock`` 'receive', one clock,
+    what a consumer of both topics sees) or their publishers' source times ('publish')."""
     if clock not in ('receive', 'publish'):
         raise ValueError(f"clock must be 'receive' or 'publish', got {clock!r}")
     field = 'log_ns' if clock == 'receive' else 'publish_ns'
     order = np.argsort(observation.stamp_ns, kind='stable')
     obs_stamps = observation.stamp_ns[order]
-    idx = np.searchsorted(obs_stamps, estimate.stamp_ns)
-    idx = np.clip(idx, 0, max(obs_stamps.size - 1, 0))
-    match = obs_stamps.size > 0
-    ok = (obs_stamps[idx] == estimate.stamp_ns) if match else np.zeros(0, bool)
-    if not match or not ok.any():
+    if obs_stamps.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    idx = np.clip(np.searchsorted(obs_stamps, estimate.stamp_ns), 0, obs_stamps.size - 1)
+    ok = obs_stamps[idx] == estimate.stamp_ns
+    delay = (getattr(estimate, field)[ok] - getattr(observation, field)[order][idx[ok]]) / 1e6
+    return estimate.stamp_ns[ok], delay
+
+
+def latency_ms(estimate: TopicTimes, observation: TopicTimes,
+               clock: str = 'receive') -> dict[str, float]:
+    """Delay [ms] of the estimates after the observations with the same stamps (``delays_ms``):
+    n, p50, p99, max, min."""
+    return _percentiles(delays_ms(estimate, observation, clock)[1])
+
+
+def _percentiles(delay: np.ndarray) -> dict[str, float]:
+    if delay.size == 0:
         return {'n': 0, 'p50_ms': math.nan, 'p99_ms': math.nan, 'max_ms': math.nan,
                 'min_ms': math.nan}
-    delay = (getattr(estimate, field)[ok] - getattr(observation, field)[order][idx[ok]]) / 1e6
-    return {'n': int(ok.sum()), 'p50_ms': float(np.percentile(delay, 50)),
+    return {'n': int(delay.size), 'p50_ms': float(np.percentile(delay, 50)),
             'p99_ms': float(np.percentile(delay, 99)), 'max_ms': float(delay.max()),
             'min_ms': float(delay.min())}
+
+
+def latency_by_phase(estimate: TopicTimes, observation: TopicTimes, truth: Truth,
+                     epoch_ns: int) -> dict[str, dict[str, float]]:
+    """``latency_ms`` per phase of the truth (``study.phase_scores.truth_phases``: quiet
+    stance, movement, flight, landing): where in a routine the estimates come late."""
+    from nmt_ros.study.phase_scores import PHASES, truth_phases
+
+    stamps, delay = delays_ms(estimate, observation)
+    t = (stamps - epoch_ns) * 1e-9
+    k = np.clip(np.rint(np.interp(t, truth.t, np.arange(truth.t.size))).astype(int), 0,
+                truth.t.size - 1)
+    masks = truth_phases(truth)
+    return {name: _percentiles(delay[masks[name][k]]) for name in PHASES}
 
 
 def final_statuses(bag: str | os.PathLike) -> dict[str, dict[str, str]]:
@@ -333,6 +359,12 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
                                'torque_rms_pct_peak': _named(JOINTS, 100 * err / peaks, 2)}
         summary['phases'] = _phase_summary(model, truth, recording, epoch, t, tau, forces,
                                            low if low in recorded else None)
+        summary['latency_by_phase_ms'] = {
+            'joint_torques': latency_by_phase(
+                topic_times(recording, topics.SKELETAL_JOINT_TORQUES), obs, truth, epoch)}
+        if forces is not None:
+            summary['latency_by_phase_ms']['muscle_forces'] = latency_by_phase(
+                topic_times(recording, topics.MUSCLE_FORCES), obs, truth, epoch)
         if forces is not None:
             tf = (forces[0] - epoch) * 1e-9
             fidx = np.clip(np.rint(np.interp(tf, truth.t, np.arange(truth.t.size))).astype(int),
@@ -403,6 +435,10 @@ def format_summary(s: Mapping[str, Any]) -> str:
     for name, v in lat.items():
         lines.append(f'latency observation -> {name}: p50 {v["p50_ms"]:.1f} ms, '
                      f'p99 {v["p99_ms"]:.1f} ms, max {v["max_ms"]:.1f} ms ({v["n"]} samples)')
+    for name, phases in s.get('latency_by_phase_ms', {}).items():
+        lines.append(f'  {name} by phase, p50 / p99 ms: ' + ', '.join(
+            f'{p} {v["p50_ms"]:.0f} / {v["p99_ms"]:.0f}' for p, v in phases.items()
+            if v['n']))
     cpu = s.get('cpu', {})
     if cpu:
         lines.append('CPU share while active (1.0 = one core): ' + ', '.join(
