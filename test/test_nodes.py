@@ -472,7 +472,12 @@ def test_skeletal_tracker_reports_loss_of_control(ros_context):
 
 
 @pytest.mark.slow
-def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_context):
+@pytest.mark.parametrize('take_period_s', [0.01, 0.0])
+def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_context,
+                                                                       take_period_s):
+    """Both input paths (raw batches decoded at once, the default; typed messages one
+    callback each, ``take_period_s`` 0) refuse the same messages for the same reasons and
+    estimate the same instants."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
@@ -494,7 +499,7 @@ def test_muscle_tracker_rejects_bad_input_and_flushes_on_end_of_stream(ros_conte
     thd, = model.batch(model.joint_angles, res.qd)
     stamps = TRIAL_EPOCH_NS + np.rint(res.t * 1e9).astype(np.int64)
     muscle = MuscleTrackerNode(context=ros_context, parameter_overrides=params(
-        window_length_s=0.02, idle_flush_s=0.0))
+        window_length_s=0.02, idle_flush_s=0.0, take_period_s=take_period_s))
     producer = NmtNode('fake_skeletal', context=ros_context)   # announces like Stage 1
     probe = rclpy.create_node('probe2', context=ros_context)
     status = StatusProbe(probe)
