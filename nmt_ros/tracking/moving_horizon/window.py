@@ -315,12 +315,16 @@ class SlidingWindow:
                    exact: Linearisation | None = None,
                    models: tuple[np.ndarray, ...] | None = None) -> float:
         """Cost of (C, plate): kept segment models (``models``: ``_models(C, plate)`` if
-        already made), with ``exact`` ones replacing them."""
-        segs, _, cost, _ = models if models is not None else self._models(C, plate)
-        if exact is not None:
-            cost = cost.copy()
-        if exact is not None:
-            cost[exact.segments - self.first] = exact.cost
+        already made), with ``exact`` ones replacing them (all of them: no model needed, the
+        rescue's and the start's checked steps over the whole window)."""
+        if (exact is not None and models is None
+                and np.array_equal(exact.segments, self.segments)):
+            cost = exact.cost
+        else:
+            _, _, cost, _ = models if models is not None else self._models(C, plate)
+            if exact is not None:
+                cost = cost.copy()
+                cost[exact.segments - self.first] = exact.cost
         prior = self._prior_at(C, plate)
         return float(cost.sum()) + (prior[0] if prior is not None else 0.0)
 
