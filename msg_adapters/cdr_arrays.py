@@ -26,6 +26,7 @@ import struct
 
 import numpy as np
 
+from .cdr_header import header_stamp_ns
 from .series import JointStateSeries, WrenchSeries
 
 _HEADER = 4  # encapsulation header bytes
@@ -231,17 +232,29 @@ class LayoutGroup:
     arrays: dict[str, np.ndarray]     # field -> [m, count] float64, count as carried
 
 
-def header_stamp(blob: bytes) -> int | None:
-    """The header stamp [ns] of a CDR message that starts with a ``std_msgs/Header``, or
-    None if the message is too short to hold one."""
-    if len(blob) < _HEADER + 8:
-        return None
-    sec, nanosec = struct.unpack_from(('<' if blob[1] == 1 else '>') + 'iI', blob, _HEADER)
-    return sec * 1_000_000_000 + nanosec
-
-
 #: layouts seen: (kind, message length) -> [(structural byte positions, their bytes, parse)]
 _LAYOUTS: dict[tuple[str, int], list[tuple[np.ndarray, bytes, dict]]] = {}
+
+
+def block_arrays(blobs: Sequence[bytes], groups: Sequence[LayoutGroup],
+                 unreadable: dict[int, str], width: int,
+                 ) -> tuple[np.ndarray, np.ndarray, list[str | None], np.ndarray]:
+    """The arrays of a ``CheckedBlock`` under construction for ``blobs`` grouped as
+    ``group_*`` returned them: (stamps [n] ns, values [n, width] NaN, reasons [n] with the
+    unreadable messages', stamped [n]: False where even the header stamp is unreadable)."""
+    n = len(blobs)
+    stamp_ns = np.zeros(n, dtype=np.int64)
+    errors: list[str | None] = [None] * n
+    stamped = np.ones(n, dtype=bool)
+    for i, reason in unreadable.items():
+        errors[i] = reason
+        try:
+            stamp_ns[i] = header_stamp_ns(blobs[i])
+        except ValueError:
+            stamped[i] = False
+    for group in groups:
+        stamp_ns[group.index] = group.stamp_ns
+    return stamp_ns, np.full((n, width), np.nan), errors, stamped
 
 
 def _layout_of(kind: str, blob: bytes, parse: Callable[[bytes], dict]) -> dict:

@@ -27,7 +27,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from .cdr_arrays import encode_joint_states, group_joint_states, header_stamp
+from .cdr_arrays import block_arrays, encode_joint_states, group_joint_states
 from .series import CheckedBlock, JointStateSeries
 from .stamps import stamps_to_ns, time_to_ns, times_from_ns, to_time
 from .validation import as_matrix, as_vector, check_finite, check_names, reorder_index
@@ -138,19 +138,11 @@ def joint_states_from_blobs(blobs: Sequence[bytes], names: Sequence[str],
     """
     names = _checked_names(tuple(names))
     require = tuple(require)
-    n, k = len(blobs), len(names)
+    k = len(names)
     groups, unreadable = group_joint_states(blobs)
-    stamp_ns = np.zeros(n, dtype=np.int64)
-    values = np.full((n, k * len(fields)), np.nan)
-    errors: list[str | None] = [None] * n
-    stamped = np.ones(n, dtype=bool)
-    for i, reason in unreadable.items():
-        errors[i] = reason
-        stamp = header_stamp(blobs[i])
-        stamped[i] = stamp is not None
-        stamp_ns[i] = stamp or 0
+    stamp_ns, values, errors, stamped = block_arrays(blobs, groups, unreadable,
+                                                     k * len(fields))
     for group in groups:
-        stamp_ns[group.index] = group.stamp_ns
         m = group.index.size
         index, problem = _cached_layout(
             group.names, tuple(group.arrays[f].shape[1] for f in FIELDS), names)

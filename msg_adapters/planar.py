@@ -16,7 +16,7 @@ from typing import Any
 from geometry_msgs.msg import WrenchStamped
 import numpy as np
 
-from .cdr_arrays import group_wrenches, header_stamp
+from .cdr_arrays import block_arrays, group_wrenches
 from .series import CheckedBlock
 from .validation import as_matrix, as_vector, check_finite
 from .wrench import from_wrench_stamped, wrench_blobs, wrenches_from_arrays, wrenches_to_arrays
@@ -76,19 +76,9 @@ def planar_wrenches_from_blobs(blobs: Sequence[bytes], frame_id: str | None = No
     """CDR WrenchStamped messages (a live node's raw batch) -> :class:`CheckedBlock` of
     ``s[n, 3]``, each message checked exactly as :func:`from_planar_wrench` checks one (same
     reasons), those sharing a layout as one array (``cdr_arrays.group_wrenches``)."""
-    n = len(blobs)
     groups, unreadable = group_wrenches(blobs)
-    stamp_ns = np.zeros(n, dtype=np.int64)
-    values = np.full((n, 3), np.nan)
-    errors: list[str | None] = [None] * n
-    stamped = np.ones(n, dtype=bool)
-    for i, reason in unreadable.items():
-        errors[i] = reason
-        stamp = header_stamp(blobs[i])
-        stamped[i] = stamp is not None
-        stamp_ns[i] = stamp or 0
+    stamp_ns, values, errors, stamped = block_arrays(blobs, groups, unreadable, 3)
     for group in groups:
-        stamp_ns[group.index] = group.stamp_ns
         if frame_id is not None and group.frame_id != frame_id:
             for i in group.index:
                 errors[i] = (f'WrenchStamped frame_id is {group.frame_id!r}, '

@@ -25,14 +25,16 @@ def basis(u: np.ndarray, dt: float, orders: int = 4) -> np.ndarray:
     coordinates ``u`` [P] in [0, 1)."""
     u = np.asarray(u, dtype=float)
     u2, u3 = u * u, u * u * u
-    rows = [lambda: np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1,
-                              u3], -1),
-            lambda: np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3,
-                              3 * u2], -1) / dt,
-            lambda: np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2,
-            lambda: np.broadcast_to(np.array([-6.0, 18.0, -18.0, 6.0]) / dt ** 3,
-                                    u.shape + (4,))]
-    return np.stack([row() for row in rows[:orders]], 1) / 6.0
+    rows = [np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1, u3], -1)]
+    if orders > 1:
+        rows.append(np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3, 3 * u2],
+                             -1) / dt)
+    if orders > 2:
+        rows.append(np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2)
+    if orders > 3:
+        rows.append(np.broadcast_to(np.array([-6.0, 18.0, -18.0, 6.0]) / dt ** 3,
+                                    u.shape + (4,)))
+    return np.stack(rows, 1) / 6.0
 
 
 @dataclass(frozen=True)
