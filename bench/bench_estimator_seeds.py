@@ -98,6 +98,7 @@ def main() -> int:
                'coverage': ref['all']['coverage'],
                'jumps_tracked': jumps['tracked'], 'jumps': len(jumps['jumps']),
                'jump_error_pct': jumps['mean_abs_error_pct'],
+               'jump_errors_pct': [j['error_pct'] for j in jumps['jumps']],
                **{ph: [*ref[ph]['torque_rms_pct_peak'].values(),
                        ref[ph]['muscle_force_rms_pct_f0']['mean']] for ph in PHASES},
                **{f'low_latency {ph}': list(low[ph]['torque_rms_pct_peak'].values())
@@ -107,19 +108,23 @@ def main() -> int:
               f"{row['coverage']:.3f}; torques ankle/knee/hip % of peak, muscles % F0: " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[ph])}" for ph in PHASES) +
               f"; jumps {row['jumps_tracked']} of {row['jumps']} tracked, mean |height error| "
-              f"{row['jump_error_pct']:.1f} %; low-latency torques " +
+              f"{row['jump_error_pct']:.1f} % (signed: "
+              f"{' '.join(f'{e:+.0f}' for e in row['jump_errors_pct'])}); low-latency torques " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[f'low_latency {ph}'])}"
                         for ph in PHASES), flush=True)
     summary = {'settings': overrides, 'seeds': rows}
     for name, fn in (('mean', np.mean), ('worst', np.max)):
         summary[name] = {'restarts': float(fn([r['restarts'] for r in rows])),
                          'jump_error_pct': float(fn([r['jump_error_pct'] for r in rows])),
+                         'jump_signed_error_pct': float(fn([np.nanmean(r['jump_errors_pct'])
+                                                            for r in rows])),
                          **{ph: np.round(fn([r[ph] for r in rows], axis=0), 2).tolist()
                             for ph in [*PHASES, *(f'low_latency {p}' for p in PHASES)]}}
         print(f"{name}: {summary[name]['restarts']:g} re-initialisations; " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in summary[name][ph])}"
                         for ph in PHASES) +
-              f"; mean |jump height error| {summary[name]['jump_error_pct']:.1f} %; low-latency "
+              f"; mean |jump height error| {summary[name]['jump_error_pct']:.1f} % (signed "
+              f"{summary[name]['jump_signed_error_pct']:+.1f} %); low-latency "
               "torques " + '; '.join(
                   f"{ph} {' / '.join(f'{v:.1f}' for v in summary[name][f'low_latency {ph}'])}"
                   for ph in PHASES))

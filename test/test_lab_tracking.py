@@ -295,16 +295,18 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
         assert (est.stamp_ns[0] - epoch) * 1e-9 == pytest.approx(0.79)
     facts = json.loads(bag_info(out / 'estimates').custom_data['nmt.track'])
     assert facts['start_in_flight'] and facts['rate_hz'] == 100.0
-    # the estimator's ground-wrench smoothness at a 100 Hz plate: 0.4 x its Nyquist frequency
-    assert facts['mhe_wrench_cutoff_hz'] == 20.0
-    assert 'ground wrench smoothed at 20 Hz (cut-off [40.0] Hz lowered to 20 Hz' in proc.stdout
+    # the estimator's ground-wrench smoothness at a 100 Hz plate: the default 40 Hz, within
+    # 0.8 x its Nyquist frequency (a smoothing spline's limit, not the Butterworth filters' 0.4)
+    assert facts['mhe_wrench_cutoff_hz'] == 40.0
+    assert 'ground wrench smoothed at 40 Hz\n' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing)
-    # without a loss of control: measured 2.2 / 2.0 / 4.0 / 1.6 deg RMS and 10.5 % BW RMS of
-    # vertical force in contact. The thigh is the compromise of the deep landing, where the
-    # measured forces and the planar model's rigid trunk disagree on where the body is (it
-    # floated 0.23 m up before the ground support held it: two losses of control, thigh
-    # 2.2 deg); the force is the 100 Hz landing impacts the 20 Hz wrench smoothness rounds
+    # without a loss of control: measured 2.2 / 2.7 / 4.0 / 1.6 deg RMS, 4.2 % BW RMS of
+    # vertical force in contact (the issue's bound: 5 %) and the contacts on the plates'
+    # samples. The thigh is the compromise of the deep landing, where the measured forces and
+    # the planar model's rigid trunk disagree on where the body is (it floated 0.23 m up
+    # before the ground support held it: two losses of control, thigh 2.2 deg). At 20 Hz the
+    # wrench prior rounded the 100 Hz landing impacts: 10.5 % BW, touchdowns a sample early
     assert 'Stage 1 is the moving-horizon estimator' in proc.stdout
     assert 'loss of control' not in proc.stdout
     est_a = read_arrays(out / 'estimates', '/nmt/skeletal/segment_angles')
@@ -319,11 +321,13 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     contact = obs_w.force[iw, 1] > 20.0
     bw = 94.5 * 9.81
     fy_rms = np.sqrt(np.mean((est_w.force[contact, 1] - obs_w.force[iw][contact, 1]) ** 2)) / bw
-    assert contact.sum() > 50 and fy_rms < 0.12, fy_rms
+    assert contact.sum() > 50 and fy_rms < 0.05, fy_rms
     # the same figures in observation_fit.json (computed the other way round: the estimate
     # interpolated onto the measured instants), and the figure
     fit = json.loads((out / 'observation_fit.json').read_text())['observation_fit']
     assert fit['force_rms_pct_bw']['fy'] == pytest.approx(100 * fy_rms, abs=1.0)
+    # contact and flight on the plates' own samples (measured: above 20 N)
+    assert fit['contacts_s']['estimated'] == fit['contacts_s']['measured'], fit['contacts_s']
     assert (out / 'fig_lab_fit.png').stat().st_size > 10_000
 
 

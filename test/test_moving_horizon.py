@@ -603,3 +603,18 @@ def test_takeoffs_and_jump_heights_of_every_jump(routine, model):
         # within 1 cm (heights 9-26 cm): the 1 N crossing is not the last contact to the
         # sample, and the state there is interpolated; a wrong lift-off is decimetres off
         assert abs(apex - model.standing_com_height - h) < 0.01, (t_lo, h, apex)
+
+
+def test_the_wrench_prior_cut_off_is_capped_at_0_8_x_nyquist_and_is_a_smoothing_spline():
+    """The wrench prior's cut-off: as given up to 0.8 x the plate's Nyquist frequency (40 Hz
+    stays 40 Hz on a 100 Hz plate), lowered with a note above it; its second-derivative SD is
+    the smoothing spline's, lambda = f_s / (sigma^2 (2 pi f_c)^4)."""
+    st = MovingHorizonSettings(wrench_rate_hz=100.0)
+    assert st.wrench_cutoff() == (40.0, None)
+    low, note = MovingHorizonSettings(wrench_rate_hz=60.0).wrench_cutoff()
+    assert low == pytest.approx(24.0) and '0.8 x the Nyquist frequency of 60 Hz' in note
+    bw = 900.0
+    lam = 100.0 / (st.wrench_sd(bw) ** 2 * (2 * np.pi * 40.0) ** 4)
+    np.testing.assert_allclose(st.wrench_accel_sd(bw), 1 / np.sqrt(lam), rtol=1e-12)
+    with pytest.raises(ValueError, match='wrench_max_cutoff_fraction'):
+        MovingHorizonSettings(wrench_max_cutoff_fraction=1.0).validate()

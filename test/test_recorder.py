@@ -429,3 +429,16 @@ def test_truth_between_keeps_the_replayed_span():
     assert part.t.size == ((truth.t >= 0.05) & (truth.t <= 0.1)).sum() > 0
     np.testing.assert_array_equal(part.tau, truth.tau[(truth.t >= 0.05) & (truth.t <= 0.1)])
     assert part.f.shape[1] == truth.f.shape[1] and part.liftoff_s == truth.liftoff_s
+
+
+def test_the_demo_summary_of_a_bag_without_truth_says_so_instead_of_printing_nan():
+    """A lab bag has no truth: the jump line gives the tracked height and says why there
+    is nothing to compare it with (it printed 'actual (truth) nan m')."""
+    from nmt_ros.study.recording_evaluation import format_summary
+
+    lab = format_summary({'tracked': {'jump_height_m': 0.368}})
+    assert 'jump height: tracked motion 0.368 m (the bag has no truth)' in lab
+    assert 'nan' not in lab
+    synthetic = format_summary({'tracked': {'jump_height_m': 0.25},
+                                'actual': {'jump_height_m': 0.2}})
+    assert 'actual (truth) 0.200 m (difference +5.0 cm)' in synthetic

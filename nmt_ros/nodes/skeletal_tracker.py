@@ -105,7 +105,7 @@ class SkeletalTrackerNode(TrackerNode):
                             'update', low=1, high=20)
         self.wrench_cutoff_hz = p('wrench_cutoff_hz', d.wrench_cutoff_hz, 'mhe: smoothness of '
                                   'the estimated ground wrench, the cut-off of its '
-                                  'smoothing-spline prior [Hz] (at most 0.4 x the force '
+                                  'smoothing-spline prior [Hz] (at most 0.8 x the force '
                                   "plate's Nyquist frequency; lower it for noisy lab plates)",
                                   low=0.1, high=50000.0)
         self.slow_backlog_s = p('slow_backlog_s', d.slow_backlog_s, 'mhe: with more data '

@@ -34,7 +34,7 @@ from nmt_ros.study.observation_fit import format_fit, id_agreement, observation_
 from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
-from nmt_ros.tracking.conditioning import cutoff_for_rate, nominal_rate, sample_rate
+from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
@@ -114,7 +114,7 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work
-    cutoff, lowered = cutoff_for_rate(mhe.wrench_cutoff_hz, rate_w)
+    cutoff, lowered = mhe.wrench_cutoff()
     if stage1 in ('mhe', 'auto', 'optimal_muscle'):   # (they fall back on it)
         say(f'moving-horizon estimator: ground wrench smoothed at {cutoff:g} Hz'
             + (f' ({lowered})' if lowered else ''))

@@ -406,9 +406,11 @@ def format_summary(s: Mapping[str, Any]) -> str:
                                    f"{j['actual_m']:.3f}" for j in jumps['jumps']) +
                          f"; mean |error| {jumps['mean_abs_error_pct']:.1f} % over the "
                          f"{jumps['tracked']} tracked")
-        else:
+        elif 'actual' in s:
             lines.append(f'jump height: tracked motion {trk:.3f} m, actual (truth) {act:.3f} m '
                          f'(difference {100 * (trk - act):+.1f} cm)')
+        else:
+            lines.append(f'jump height: tracked motion {trk:.3f} m (the bag has no truth)')
     vt = s.get('vs_truth')
     if vt:
         lines.append('joint torques vs truth (RMS, contact phase): ' + ', '.join(
