@@ -168,7 +168,12 @@ class MovingHorizonSettings:
     recover_after_s: float = 0.05      # that long above the limit -> re-initialise
     flight_force_bw: float = 0.05      # estimated vertical force below this: airborne
     # the physical envelope of a healthy estimate (outside it: loss of control at once)
-    max_angle_error_deg: float = 45.0  # a segment angle this far from its newest sample
+    max_angle_error_deg: float = 45.0  # a segment angle this far from its 3 newest samples
+    # an emitted span's segment angle this far from all of its mocap samples (at least two)
+    # is not published: the window's lagged part left the observations. The real drop
+    # jump's spans: at most 10.8 deg (100 Hz, IK), 9.6 (100 Hz, markers), 20.1 (resampled
+    # to 200 Hz), whose touchdown published a shank 45-64 deg off for 25 ms before this
+    max_span_angle_error_deg: float = 30.0
     max_rate_rad_s: float = 150.0      # segment rates
     max_force_bw: float = 15.0         # ground force magnitude
     max_translation_m: float = 3.0     # the ankle from the origin
