@@ -639,13 +639,13 @@ def test_an_emitted_span_far_from_all_its_mocap_samples_is_not_published(stance,
     span = w.t_start + 0.01 + np.arange(28) / 1080.0          # 25 ms: three mocap samples
     inside = (w.angles.t >= span[0]) & (w.angles.t <= span[-1])
     assert inside.sum() == 3
-    assert est._far_from_mocap(span) is None
+    assert est._far_from_mocap([span]) is None
     fitted = w.angles.y.copy()
     w.angles.y[inside, 1] += np.radians(60.0)
-    assert 'from all 3 mocap samples' in est._far_from_mocap(span)
+    assert 'from all 3 mocap samples' in est._far_from_mocap([span])
     w.angles.y[:] = fitted
     w.angles.y[np.flatnonzero(inside)[1], 1] += np.radians(90.0)      # a lone spike
-    assert est._far_from_mocap(span) is None
+    assert est._far_from_mocap([span]) is None
     w.angles.y[:] = fitted
     w.angles.y[inside, 1] += np.radians(20.0)                         # within the bound
-    assert est._far_from_mocap(span) is None
+    assert est._far_from_mocap([span]) is None

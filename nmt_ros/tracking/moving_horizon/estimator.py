@@ -432,9 +432,7 @@ class MovingHorizonEstimator:
             return []
         kinds = list(ready)
         both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
-        why = self._implausible(both)
-        for k in kinds:
-            why = why or self._far_from_mocap(ready[k])
+        why = self._implausible(both) or self._far_from_mocap([ready[k] for k in kinds])
         if why is not None:
             # never published: the instants are reported as lost and the window restarts
             self._drop_window(t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
@@ -465,23 +463,31 @@ class MovingHorizonEstimator:
             return f'muscle force {ratio.max():.1f} F0'
         return None
 
-    def _far_from_mocap(self, t: np.ndarray) -> str | None:
-        """Why the estimates at instants t [s] (one emitted span, inside the window) cannot
-        be published for their angles (None: they can): a segment angle more than
-        ``max_span_angle_error_deg`` from every finite mocap sample of the span (two or more: a
-        lone spike is the mocap's). ``_outside_envelope`` judges the window's newest samples
-        only: on the real drop jump resampled to 200 Hz the touchdown's refined shank was
-        published 45-64 deg from the mocap for 25 ms while the newest samples were fitted."""
+    def _far_from_mocap(self, spans: list[np.ndarray]) -> str | None:
+        """Why the estimates at the instants of ``spans`` [s] (emitted spans, inside the
+        window) cannot be published for their angles (None: they can): in a span, a segment
+        angle more than ``max_span_angle_error_deg`` from every finite mocap sample of it
+        (two or more: a lone spike is the mocap's). ``_outside_envelope`` judges the
+        window's newest samples only: on the real drop jump resampled to 200 Hz the
+        touchdown's refined shank was published 45-64 deg from the mocap for 25 ms while
+        the newest samples were fitted. One evaluation of the window for all spans."""
         w = self.window
         ta, ya = w.angles.t, w.angles.y
-        inside = np.flatnonzero((ta >= t[0] - 1e-12) & (ta <= t[-1] + 1e-12)
-                                & np.isfinite(ya).all(axis=1))
-        if inside.size < 2:
+        finite = np.isfinite(ya).all(axis=1)
+        groups = [np.flatnonzero((ta >= t[0] - 1e-12) & (ta <= t[-1] + 1e-12) & finite)
+                  for t in spans]
+        groups = [g for g in groups if g.size >= 2]
+        if not groups:
             return None
-        err = np.degrees(np.abs(w.values(ta[inside], 1)[:, 0, :4] - ya[inside]).min(axis=0))
-        if err.max() > self.settings.max_span_angle_error_deg:
-            return (f'a segment angle {err.max():.0f} deg from all {inside.size} mocap samples '
-                    'of its span')
+        rows = np.concatenate(groups)
+        err = np.degrees(np.abs(w.values(ta[rows], 1)[:, 0, :4] - ya[rows]))
+        start = 0
+        for g in groups:
+            worst = float(err[start:start + g.size].min(axis=0).max())
+            start += g.size
+            if worst > self.settings.max_span_angle_error_deg:
+                return (f'a segment angle {worst:.0f} deg from all {g.size} mocap samples '
+                        'of its span')
         return None
 
     def estimates(self, kind: str, t: np.ndarray) -> EstimateBlock:
