@@ -109,6 +109,13 @@ class MuscleTrackerNode(TrackerNode):
             self.stream.add(s.stamp_ns, self.clock.t(s.stamp_ns), v[0:3], v[3:6], v[6:9])
         self.received_at[stamp_ns] = received
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
+        if not self.taking:          # a callback per message; else at the batch's end
+            self.process()
+            self._check_end()
+
+    def batch_done(self) -> None:
+        # Stage 2's pushes are cut by the data (``Stage2Stream.process``): once per batch
+        # gives the same outputs as once per message, without the per-call planning
         self.process()
         self._check_end()
 
