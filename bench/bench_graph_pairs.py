@@ -54,7 +54,9 @@ def line(label: str, s: dict) -> str:
             + f' sum {sum(v["cpu_s"] for v in cpu.values()):5.1f} | p50/p99 ms '
             + ' '.join(f'{k.replace("_joint_torques", "").replace("joint_torques", "refined")}'
                        f' {v["p50_ms"]:.0f}/{v["p99_ms"]:.0f}' for k, v in lat.items())
-            + f' | cover {cover:.3f}')
+            + f' | cover {cover:.3f}'
+            + (f" | others {s['host']['other_cores']:.2f} cores, steal "
+               f"{s['host']['steal_pct']:.1f} %" if 'host' in s else ''))
 
 
 def main() -> int:

@@ -51,8 +51,12 @@ def run(args: argparse.Namespace) -> int:
           f'recording to {recording} ...', flush=True)
     timeout = args.timeout or replay_timeout_s(bag, args.rate, args.duration)
     extra = {'observation_publisher': {'duration_s': args.duration}} if args.duration else None
+    from nmt_ros.study.host_load import cpu_times, format_host_load, host_load
+
+    before = cpu_times()
     result = run_graph(bag=bag, rate=args.rate, record=recording, params=args.params,
                        log_dir=out / 'logs', timeout_s=timeout, extra_params=extra)
+    after = cpu_times()
     print(format_run(result).splitlines()[0])
     for problem in result.problems:
         print(f'  problem: {problem}')
@@ -66,10 +70,14 @@ def run(args: argparse.Namespace) -> int:
     summary['graph'] = {'returncode': result.returncode, 'wall_s': round(result.wall_s, 2),
                         'node_returncodes': result.node_returncodes,
                         'problems': result.problems}
+    if before is not None and after is not None:
+        summary['host'] = host_load(before, after)
     (out / 'summary.json').write_text(json.dumps(summary, indent=1, default=float) + '\n',
                                       encoding='utf-8')
     print()
     print(format_summary(summary))
+    if 'host' in summary:
+        print(format_host_load(summary['host']))
     print()
     print(f'files: recording {recording} (nmt bag info {recording}), '
           f'numbers {out / "summary.json"}, logs and parameters {result.log_dir}')
