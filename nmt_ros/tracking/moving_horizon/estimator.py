@@ -17,8 +17,8 @@ Start: once ``start_window_s`` of data arrived, the window is initialised from t
 (filtered angles, the ankle height the vertical force implies, the ground wrench, activations
 from inverse dynamics + static optimisation made feasible for Eq. 8a) and solved with a
 continuation on the dynamics' weight. Loss of control (the newest data no longer explained,
-non-finite numbers, a singular step) is detected, reported and followed by the same
-initialisation from the newest data.
+non-finite numbers, a singular step, an emitted span far from its own mocap samples) is
+detected, reported and followed by the same initialisation from the newest data.
 """
 from __future__ import annotations
 
