@@ -365,7 +365,6 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
         if forces is not None:
             summary['latency_by_phase_ms']['muscle_forces'] = latency_by_phase(
                 topic_times(recording, topics.MUSCLE_FORCES), obs, truth, epoch)
-        if forces is not None:
             tf = (forces[0] - epoch) * 1e-9
             fidx = np.clip(np.rint(np.interp(tf, truth.t, np.arange(truth.t.size))).astype(int),
                            0, truth.t.size - 1)

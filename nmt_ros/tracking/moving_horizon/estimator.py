@@ -389,14 +389,18 @@ class MovingHorizonEstimator:
             return (f'a ground force of {s[k, 1] / bw:.1f} BW with the ankle {lift[k]:.2f} m '
                     f'above its standing height (on the ground at most '
                     f'{self.max_loaded_lift_m - st.loaded_lift_margin_m:.2f} m)')
-        ta, ya = w.angles.t, w.angles.y
-        newest = np.nonzero(np.isfinite(ya).all(axis=1))[0][-3:]
+        newest = np.nonzero(np.isfinite(w.angles.y).all(axis=1))[0][-3:]
         if newest.size == 3:       # all three newest samples far off (not a spike)
-            err = np.abs(w.values(ta[newest], 1)[:, 0, :4] - ya[newest]).min(axis=0)
-            if np.degrees(err).max() > st.max_angle_error_deg:
-                return (f'a segment angle {np.degrees(err).max():.0f} deg from its three '
-                        'newest samples')
+            err = self._angle_errors_deg(newest).min(axis=0).max()
+            if err > st.max_angle_error_deg:
+                return f'a segment angle {err:.0f} deg from its three newest samples'
         return None
+
+    def _angle_errors_deg(self, rows: np.ndarray) -> np.ndarray:
+        """|window - mocap| [len(rows), 4] deg of each segment angle at the window's mocap
+        samples ``rows``."""
+        w = self.window
+        return np.degrees(np.abs(w.values(w.angles.t[rows], 1)[:, 0, :4] - w.angles.y[rows]))
 
     def _slide(self, t_u: float) -> None:
         st, w = self.settings, self.window
@@ -479,8 +483,7 @@ class MovingHorizonEstimator:
         groups = [g for g in groups if g.size >= 2]
         if not groups:
             return None
-        rows = np.concatenate(groups)
-        err = np.degrees(np.abs(w.values(ta[rows], 1)[:, 0, :4] - ya[rows]))
+        err = self._angle_errors_deg(np.concatenate(groups))
         start = 0
         for g in groups:
             worst = float(err[start:start + g.size].min(axis=0).max())
