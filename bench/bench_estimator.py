@@ -3,7 +3,8 @@ truth for each refined lag (the lag/accuracy curve that sets the default ``lag_s
 low-latency estimate, restarts, and CPU per update and per second of data.
 
     python bench/bench_estimator.py [--bag bags/routine] [--duration 20] [--lags 0.025,0.05,0.1]
-                                    [--update-rate 120] [--json out.json] [--busiest 5]
+                                    [--update-rate 120] [--set key=value ...]
+                                    [--json out.json] [--busiest 5]
 
 The estimator is fed the recording in time order exactly as the node feeds it (offline =
 live). CPU is process time of this process (one core); on a machine shared with other jobs
@@ -12,6 +13,7 @@ the per-update figures rise, the accuracy does not change.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 from pathlib import Path
 import sys
@@ -35,16 +37,22 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=20.0, help='seconds of the bag [s]')
     ap.add_argument('--lags', default='0.025,0.05,0.1', help='refined lags to run [s]')
     ap.add_argument('--update-rate', type=float, default=None, help='updates per second')
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
+                    help='MovingHorizonSettings overrides (Python literals)')
     ap.add_argument('--json', default=None, help='write the figures here')
     ap.add_argument('--busiest', type=int, default=5,
                     help='list this many seconds of data with the most estimator CPU')
     args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition('=')
+        overrides[key] = ast.literal_eval(value)
     model = default_model()
     truth, obs = read_truth(args.bag), read_observations(args.bag)
     sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
     results = {}
     for lag in (float(x) for x in args.lags.split(',')):
-        st = MovingHorizonSettings()
+        st = MovingHorizonSettings().with_(**overrides)
         st = st.with_(lag_s=lag, window_s=max(st.window_s, lag + 0.05))
         if args.update_rate:
             st = st.with_(update_rate_hz=args.update_rate)

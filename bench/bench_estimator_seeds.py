@@ -6,7 +6,8 @@ tracked motion (``study.recording_evaluation.jump_table``, as ``nmt demo`` repor
 seed, then the mean and the worst over the seeds.
 
     python bench/bench_estimator_seeds.py [--bag bags/routine] [--seeds 1,2,3,4]
-                                          [--duration 60] [--set key=value ...] [--json F]
+                                          [--duration 60] [--faults] [--set key=value ...]
+                                          [--json F]
 
 One realisation of a shipped bag says little about hidden ones: the estimator's losses of
 control (and so its errors) change with the noise. ``--set`` overrides a
@@ -69,6 +70,9 @@ def main() -> int:
     ap.add_argument('--without-angle-bias', action='store_true',
                     help="remove the generator's smooth angle bias (skin motion) from the "
                     'observed angles, keeping their noise (to see what the bias causes)')
+    ap.add_argument('--faults', action='store_true',
+                    help="the routine generator's faults too (marker occlusions, NaN frames, "
+                    'force-plate drift, spikes: RoutineObservationSettings(faults=True))')
     ap.add_argument('--json', default=None, help='write the figures here')
     args = ap.parse_args()
     overrides = {}
@@ -81,8 +85,9 @@ def main() -> int:
     scored = truth.between(0.0, args.duration)
     rows = []
     for seed in (int(x) for x in args.seeds.split(',')):
-        obs, parts = make_routine_observations(fine, RoutineObservationSettings(seed=seed),
-                                               model.p.body_weight)
+        obs, parts = make_routine_observations(
+            fine, RoutineObservationSettings(seed=seed, faults=args.faults),
+            model.p.body_weight)
         if args.without_angle_bias:
             obs = replace(obs, angles=obs.angles - parts['smooth_angle_bias'])
         sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
