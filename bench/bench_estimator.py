@@ -13,7 +13,6 @@ the per-update figures rise, the accuracy does not change.
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 from pathlib import Path
 import sys
@@ -43,10 +42,7 @@ def main() -> int:
     ap.add_argument('--busiest', type=int, default=5,
                     help='list this many seconds of data with the most estimator CPU')
     args = ap.parse_args()
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition('=')
-        overrides[key] = ast.literal_eval(value)
+    overrides = MovingHorizonSettings.overrides(args.set)
     model = default_model()
     truth, obs = read_truth(args.bag), read_observations(args.bag)
     sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration

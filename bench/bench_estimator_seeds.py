@@ -17,7 +17,6 @@ About 16 s of CPU per seed and minute of data (2-core machine, idle).
 from __future__ import annotations
 
 import argparse
-import ast
 from dataclasses import replace
 import json
 from pathlib import Path
@@ -75,10 +74,7 @@ def main() -> int:
                     'force-plate drift, spikes: RoutineObservationSettings(faults=True))')
     ap.add_argument('--json', default=None, help='write the figures here')
     args = ap.parse_args()
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition('=')
-        overrides[key] = ast.literal_eval(value)
+    overrides = MovingHorizonSettings.overrides(args.set)
     settings = MovingHorizonSettings().with_(**overrides)
     model = default_model()
     truth, fine = plate_rate_truth(args.bag)

@@ -649,3 +649,17 @@ def test_an_emitted_span_far_from_all_its_mocap_samples_is_not_published(stance,
     w.angles.y[:] = fitted
     w.angles.y[inside, 1] += np.radians(20.0)                         # within the bound
     assert est._far_from_mocap([span]) is None
+
+
+def test_settings_overrides_parse_python_literals_and_name_bad_items():
+    """The benchmarks' ``--set KEY=VALUE``: literals typed as given, usable by ``with_``; an
+    unknown field, a missing '=' or a non-literal value is refused with the item named."""
+    o = MovingHorizonSettings.overrides(['wrench_cutoff_hz=80.0', 'rescue_iterations=2',
+                                         'plate_reversion_s=(0.0, 0.0, 0.0, 1.0)'])
+    assert o == {'wrench_cutoff_hz': 80.0, 'rescue_iterations': 2,
+                 'plate_reversion_s': (0.0, 0.0, 0.0, 1.0)}
+    st = MovingHorizonSettings().with_(**o)
+    assert st.wrench_cutoff_hz == 80.0 and st.rescue_iterations == 2
+    for bad in ('no_such_field=1', 'wrench_cutoff_hz', 'wrench_cutoff_hz=eighty'):
+        with pytest.raises(ValueError, match=repr(bad).replace('(', r'\(')):
+            MovingHorizonSettings.overrides([bad])

@@ -110,8 +110,7 @@ class MuscleTrackerNode(TrackerNode):
         self.received_at[stamp_ns] = received
         self.newest_input_ns = max(self.newest_input_ns, stamp_ns)
         if not self.taking:          # a callback per message; else at the batch's end
-            self.process()
-            self._check_end()
+            self.batch_done()
 
     def batch_done(self) -> None:
         # Stage 2's pushes are cut by the data (``Stage2Stream.process``): once per batch

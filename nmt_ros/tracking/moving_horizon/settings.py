@@ -7,7 +7,9 @@ estimator, documented with its unit.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import ast
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -192,6 +194,24 @@ class MovingHorizonSettings:
 
     def with_(self, **kw: object) -> MovingHorizonSettings:
         return replace(self, **kw)
+
+    @classmethod
+    def overrides(cls, items: Sequence[str]) -> dict[str, object]:
+        """``KEY=VALUE`` strings (a field name, a Python literal: the benchmarks' ``--set``)
+        as keyword arguments for ``with_``; an unknown field or a value that is not a
+        literal is a ValueError naming it."""
+        names = {f.name for f in fields(cls)}
+        out: dict[str, object] = {}
+        for item in items:
+            key, sep, value = item.partition('=')
+            if not sep or key not in names:
+                raise ValueError(f'{item!r}: not KEY=VALUE with KEY a MovingHorizonSettings '
+                                 'field')
+            try:
+                out[key] = ast.literal_eval(value)
+            except (ValueError, SyntaxError) as exc:
+                raise ValueError(f'{item!r}: the value is not a Python literal') from exc
+        return out
 
     def angle_sd(self) -> np.ndarray:
         """[4] rad."""
