@@ -95,7 +95,7 @@ class MovingHorizonEstimator:
         bw = model.p.body_weight
         m = model.p.muscles
         mass_diag = np.diag(np.asarray(model.mass_matrix(np.zeros(6))))
-        self.kernel = SegmentKernel(model, KernelSpec(
+        self.kernel_spec = KernelSpec(
             angle_capacity=capacity(st.angle_rate_hz, st.knot_rate_hz),
             wrench_capacity=capacity(st.wrench_rate_hz, st.knot_rate_hz),
             dt=1.0 / st.knot_rate_hz, angle_sd=tuple(st.angle_sd()),
@@ -109,7 +109,8 @@ class MovingHorizonEstimator:
             wrench_accel_sd=tuple(st.wrench_accel_sd(bw)), share_free=st.share_free,
             full_share=st.contact_full_share, release_sd=st.contact_release_sd,
             support_sd=st.contact_support_sd_m,
-            free_foot_sd=float(np.radians(st.free_foot_angle_sd_deg))))
+            free_foot_sd=float(np.radians(st.free_foot_angle_sd_deg)))
+        self.kernel = SegmentKernel(model, self.kernel_spec)
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         # the highest the ankle can be above its standing height with a contact point on the

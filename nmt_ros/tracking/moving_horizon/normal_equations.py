@@ -67,7 +67,7 @@ class NormalEquations:
         blocks' upper band form (``band_form`` of H[:, :nb, :nb]) if already made."""
         nb = self.nb
         if band is None:
-            band = band_form(H[:, :nb, :nb])
+            band = band_form(H, nb)
         for k, s in enumerate(seg):
             lo = s * self.nv
             self.ab[:, lo:lo + nb] += band[k]
@@ -102,14 +102,17 @@ class NormalEquations:
         n, kd = self.n, self.kd
         # a relative floor on the damping: directions the data do not reach (the window's
         # newest control points) stay positive definite after rounding
-        damping = damping + RELATIVE_DAMPING * np.concatenate([self.ab[kd], np.diag(self.Hxx)])
-        diag = np.concatenate([self.ab[kd], np.diag(self.Hxx)]) + damping
-        d = 1.0 / np.sqrt(np.maximum(diag, 1e-300))
+        diag = self.diagonal()
+        damping = damping + RELATIVE_DAMPING * diag
+        d = 1.0 / np.sqrt(np.maximum(diag + damping, 1e-300))
         dc, dx_ = d[:n], d[n:]
-        rows, inside = _band_rows(n, kd)
         ab = self.ab.copy()
         ab[kd] += damping[:n]
-        ab *= np.where(inside, dc[rows], 0.0) * dc[None, :]
+        # rows clipped to 0 where the band has no entry: those entries of ab are zero (no
+        # block reaches them) and stay zero
+        scale = dc[_band_rows(n, kd)]
+        scale *= dc[None, :]
+        ab *= scale
         c, info = _PBTRF(ab, lower=0)
         if info != 0:
             raise np.linalg.LinAlgError(f'normal equations not positive definite ({info})')
@@ -126,34 +129,37 @@ RELATIVE_DAMPING = 1e-9
 
 _PBTRF, _PBTRS, _POTRF, _POTRS = get_lapack_funcs(('pbtrf', 'pbtrs', 'potrf', 'potrs'),
                                                   (np.zeros((2, 2)),))
-def band_form(H: np.ndarray) -> np.ndarray:
-    """Upper band form [S, nb, nb] of square blocks H [S, nb, nb] (half bandwidth nb - 1:
-    row kd + i - j, column j holds H[i, j]; zero outside the block)."""
-    S, nb = H.shape[0], H.shape[-1]
-    flat, inside = _block_band_index(nb)
+def band_form(H: np.ndarray, nb: int | None = None) -> np.ndarray:
+    """Upper band form [S, nb, nb] of the leading nb x nb blocks (default: all) of square
+    blocks H [S, n, n] (half bandwidth nb - 1: row kd + i - j, column j holds H[i, j]; zero
+    outside the block). Gathered from H as it is (copying the leading blocks first took 215
+    against 177 us for a window of 13 segments)."""
+    S, n = H.shape[0], H.shape[-1]
+    nb = n if nb is None else nb
+    flat, inside = _block_band_index(nb, n)
     band = np.zeros((S, nb * nb))
-    band[:, inside] = H.reshape(S, nb * nb)[:, flat]
+    band[:, inside] = np.ascontiguousarray(H).reshape(S, n * n)[:, flat]
     return band.reshape(S, nb, nb)
 
 
 @functools.cache
-def _block_band_index(nb: int) -> tuple[np.ndarray, np.ndarray]:
-    """(flat index into an nb x nb block, flat position in its band form [nb, nb]) of the
-    band entries inside the block (LAPACK, kd = nb - 1: ab[kd + i - j, j] = A[i, j], i <= j;
-    the other band entries are zero)."""
+def _block_band_index(nb: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat index into an n x n block, flat position in the band form [nb, nb] of its
+    leading nb x nb block) of the band entries inside that block (LAPACK, kd = nb - 1:
+    ab[kd + i - j, j] = A[i, j], i <= j; the other band entries are zero)."""
     kd = nb - 1
     j = np.arange(nb)[None, :]
     i = j - (kd - np.arange(kd + 1))[:, None]
     inside = (i >= 0).ravel()
-    return (i * nb + j).ravel()[inside], np.flatnonzero(inside)
+    return (i * n + j).ravel()[inside], np.flatnonzero(inside)
 
 
 @functools.cache
-def _band_rows(n: int, kd: int) -> tuple[np.ndarray, np.ndarray]:
-    """(row of each entry of an n-column upper band matrix [kd + 1, n], clipped to 0;
-    whether that row exists)."""
+def _band_rows(n: int, kd: int) -> np.ndarray:
+    """Row of each entry of an n-column upper band matrix [kd + 1, n], clipped to 0 where
+    that row does not exist."""
     rows = np.arange(n)[None, :] - (kd - np.arange(kd + 1))[:, None]
-    return np.maximum(rows, 0), rows >= 0
+    return np.maximum(rows, 0)
 
 
 @functools.cache

@@ -269,7 +269,7 @@ class SlidingWindow:
         slot = lin.segments - self.base
         self.lin_seg[slot] = lin.segments
         self.lin_H[slot] = lin.H
-        self.lin_band[slot] = band_form(lin.H[:, :NB, :NB])
+        self.lin_band[slot] = band_form(lin.H, NB)
         self.lin_g[slot] = lin.g
         self.lin_cost[slot] = lin.cost
         self.lin_rows[slot] = lin.rows
