@@ -19,8 +19,10 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 import json
+import math
 from pathlib import Path
 import sys
+import warnings
 
 import numpy as np
 
@@ -100,10 +102,10 @@ def main() -> int:
                'jumps_tracked': jumps['tracked'], 'jumps': len(jumps['jumps']),
                'jump_error_pct': jumps['mean_abs_error_pct'],
                'jump_errors_pct': [j['error_pct'] for j in jumps['jumps']],
-               **{ph: [*ref[ph]['torque_rms_pct_peak'].values(),
-                       ref[ph]['muscle_force_rms_pct_f0']['mean']] for ph in PHASES},
-               **{f'low_latency {ph}': list(low[ph]['torque_rms_pct_peak'].values())
-                  for ph in PHASES}}
+               **{ph: [*_torques(ref[ph]),
+                       ref[ph].get('muscle_force_rms_pct_f0', {}).get('mean', math.nan)]
+                  for ph in PHASES},
+               **{f'low_latency {ph}': _torques(low[ph]) for ph in PHASES}}
         rows.append(row)
         print(f"seed {seed}: {run.restarts} re-initialisations, coverage "
               f"{row['coverage']:.3f}; torques ankle/knee/hip % of peak, muscles % F0: " +
@@ -114,7 +116,7 @@ def main() -> int:
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[f'low_latency {ph}'])}"
                         for ph in PHASES), flush=True)
     summary = {'settings': overrides, 'seeds': rows}
-    for name, fn in (('mean', np.mean), ('worst', np.max)):
+    for name, fn in (('mean', _nanmean), ('worst', _nanmax)):
         summary[name] = {'restarts': float(fn([r['restarts'] for r in rows])),
                          'jump_error_pct': float(fn([r['jump_error_pct'] for r in rows])),
                          'jump_signed_error_pct': float(fn([np.nanmean(r['jump_errors_pct'])
@@ -132,6 +134,25 @@ def main() -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=1))
     return 0
+
+
+def _torques(scores: dict) -> list[float]:
+    """A phase's torque errors [% peak] (ankle, knee, hip); NaN where the span scored has
+    none of that phase (say a short --duration without quiet stance)."""
+    torques = scores.get('torque_rms_pct_peak')
+    return list(torques.values()) if torques else [math.nan] * 3
+
+
+def _nanmean(x: object, axis: int | None = None) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)     # a phase no seed had
+        return np.nanmean(x, axis=axis)
+
+
+def _nanmax(x: object, axis: int | None = None) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)
+        return np.nanmax(x, axis=axis)
 
 
 if __name__ == '__main__':

@@ -151,6 +151,17 @@ class MovingHorizonSettings:
     start_iterations: int = 20         # (40: the same accuracy on the routine; a start
                                        # blocks a live node, so it is kept short)
     start_dynamics_sd: tuple[float, ...] = (10.0, 3.0, 1.0, 0.3)  # continuation [m/s^2]
+    # a stream that begins in the air: its first update waits up to airborne_start_wait_s
+    # of data for the first landing and airborne_landing_s of it, and its window spans the
+    # whole fall (MovingHorizonEstimator._awaiting_landing; 0: no wait). Sixteen
+    # realisations of bags/routine, which begins with a 0.24 s drop (python
+    # bench/bench_estimator_seeds.py --seeds 1,...,16 --duration 1.2): re-initialisations
+    # in the first 1.2 s 21 -> 8 (16 at the first landing -> none before 0.75 s), refined
+    # torques in flight 3.0 / 12.7 / 27.8 -> 3.4 / 9.6 / 18.2 % of peak, landing 14.3 /
+    # 13.4 / 23.8 -> 13.6 / 11.2 / 19.2; over the whole minute (--duration 60) 2.56 -> 2.25
+    # a minute, flight 3.2 / 7.1 / 15.2 -> 3.4 / 6.1 / 12.1, jump heights 8.9 -> 8.0 % off
+    airborne_start_wait_s: float = 0.35
+    airborne_landing_s: float = 0.025
     # --- health (loss of control)
     slow_backlog_s: float = 0.0        # data waiting this long: update every other
                                        # period until caught up (live only; 0 = never). Off
