@@ -568,6 +568,14 @@ def test_a_stream_that_begins_in_the_air_starts_on_its_first_landing(routine, mo
         assert (err < np.array(limit)).all(), (a, b, err)
     m = (ref.t >= land_s + 0.1) & (ref.t < 0.45)
     assert np.abs(ref.q[m, 5] - np.interp(ref.t[m], truth.t, truth.q[:, 5])).max() < 0.01
+    # without the wait: the first window starts in the air after start_window_s
+    st = MovingHorizonSettings(airborne_start_wait_s=0.0)
+    early = estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw],
+                     obs.wrench[sw], st)
+    assert early.events[0].message == 'initialised'
+    assert early.events[0].t == pytest.approx(st.start_window_s)
+    with pytest.raises(ValueError, match='airborne_landing_s'):
+        MovingHorizonSettings(airborne_landing_s=-0.01).validate()
 
 
 def test_a_loaded_estimate_stands_on_the_ground(routine, model):

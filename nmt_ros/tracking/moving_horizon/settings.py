@@ -156,7 +156,7 @@ class MovingHorizonSettings:
     # whole fall (MovingHorizonEstimator._awaiting_landing; 0: no wait). Sixteen
     # realisations of bags/routine, which begins with a 0.24 s drop (python
     # bench/bench_estimator_seeds.py --seeds 1,...,16 --duration 1.2): re-initialisations
-    # in the first 1.2 s 21 -> 8 (16 at the first landing -> none before 0.75 s), refined
+    # in the first 1.2 s 21 -> 8 (14 in the drop and its landing -> none before 0.75 s), refined
     # torques in flight 3.0 / 12.7 / 27.8 -> 3.4 / 9.6 / 18.2 % of peak, landing 14.3 /
     # 13.4 / 23.8 -> 13.6 / 11.2 / 19.2; over the whole minute (--duration 60) 2.56 -> 2.25
     # a minute, flight 3.2 / 7.1 / 15.2 -> 3.4 / 6.1 / 12.1, jump heights 8.9 -> 8.0 % off
@@ -256,6 +256,9 @@ class MovingHorizonSettings:
             raise ValueError('knot_rate_hz must be at least update_rate_hz')
         if not (np.isfinite(self.wrench_cutoff_hz) and self.wrench_cutoff_hz > 0):
             raise ValueError(f'the wrench cut-off {self.wrench_cutoff_hz} Hz must be positive')
+        for name in ('airborne_start_wait_s', 'airborne_landing_s'):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f'{name} ({getattr(self, name)} s) must be 0 or more')
         if not 0 < self.wrench_max_cutoff_fraction < 1:
             raise ValueError(f'wrench_max_cutoff_fraction {self.wrench_max_cutoff_fraction} '
                              'must be in (0, 1)')
