@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 from moving_horizon_oracle import (
     CollocationWeights,
@@ -568,6 +569,14 @@ def test_a_stream_that_begins_in_the_air_starts_on_its_first_landing(routine, mo
         assert (err < np.array(limit)).all(), (a, b, err)
     m = (ref.t >= land_s + 0.1) & (ref.t < 0.45)
     assert np.abs(ref.q[m, 5] - np.interp(ref.t[m], truth.t, truth.q[:, 5])).max() < 0.01
+    # the same estimates, bit for bit, however the samples arrive (a starved live node's
+    # lumps of 0.1 and 0.5 s; the wait is decided from the data alone)
+    part = SimpleNamespace(t_angles=obs.t_angles[sa], angles=obs.angles[sa],
+                           t_wrench=obs.t_wrench[sw], wrench=obs.wrench[sw])
+    for lump_s in (0.1, 0.5):
+        _, blocks = _fed_in_lumps(model, part, _every(lump_s))
+        lumped = [b for b in blocks if b.kind == 'refined']
+        assert np.array_equal(np.concatenate([b.tau for b in lumped]), ref.tau)
     # without the wait: the first window starts in the air after start_window_s
     st = MovingHorizonSettings(airborne_start_wait_s=0.0)
     early = estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw],

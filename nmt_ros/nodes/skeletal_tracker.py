@@ -108,6 +108,10 @@ class SkeletalTrackerNode(TrackerNode):
                                   'smoothing-spline prior [Hz] (at most 0.8 x the force '
                                   "plate's Nyquist frequency; lower it for noisy lab plates)",
                                   low=0.1, high=50000.0)
+        self.airborne_start_wait_s = p(
+            'airborne_start_wait_s', d.airborne_start_wait_s, 'mhe: a stream that begins in '
+            'the air starts on its first landing if one comes within this much data [s] (its '
+            'window then spans the whole fall); 0 = start in the air', low=0.0, high=10.0)
         self.slow_backlog_s = p('slow_backlog_s', d.slow_backlog_s, 'mhe: with more data '
                                 'than this waiting, update every other period until caught up '
                                 '(less latency after a burst; the estimates then depend on the '
@@ -173,12 +177,14 @@ class SkeletalTrackerNode(TrackerNode):
                                     update_rate_hz=self.update_rate_hz,
                                     iterations=self.iterations,
                                     wrench_cutoff_hz=self.wrench_cutoff_hz,
+                                    airborne_start_wait_s=self.airborne_start_wait_s,
                                     angle_rate_hz=self.angle_rate_hz,
                                     wrench_rate_hz=self.wrench_rate_hz)
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
             'wrench_cutoff_hz': self.wrench_cutoff_hz,
+            'airborne_start_wait_s': self.airborne_start_wait_s,
             'slow_backlog_s': self.slow_backlog_s, 'max_backlog_s': self.max_backlog_s,
             'side_rate_hz': self.side_rate_hz,
             'lookahead_s': self.lookahead_s,

@@ -208,10 +208,13 @@ class MovingHorizonEstimator:
             self.start_decided = True
             return False
         t_ref = self.grid.t_ref
+        until = t_ref + st.airborne_start_wait_s + 1e-12
         t = np.array([p[0] for p in self.pending_wrench])
         fy = np.array([p[1][1] for p in self.pending_wrench])
         finite = np.isfinite(fy)
-        loaded = finite & (fy > st.contact_full_load_bw * self.model.p.body_weight)
+        # samples past the wait do not count (however the data arrive, the same decision)
+        loaded = finite & (fy > st.contact_full_load_bw * self.model.p.body_weight) & (
+            t <= until)
         if finite.any() and loaded[np.argmax(finite)]:     # began on the ground
             self.start_decided = True
             return False
@@ -223,7 +226,6 @@ class MovingHorizonEstimator:
             self.start_from_first = True
             self.start_decided = True
             return False
-        until = t_ref + st.airborne_start_wait_s - 1e-12
         if min(self.newest) < until and max(self.newest) < until + self.max_wait_s:
             return True                         # in the air so far (or no data): wait
         self.start_decided = True               # no landing within the wait
