@@ -16,7 +16,8 @@ fell out of it into the arrival cost. Each update emits, for every force-plate i
 Start: once ``start_window_s`` of data arrived, the window is initialised from the data
 (filtered angles, the ankle height the vertical force implies, the ground wrench, activations
 from inverse dynamics + static optimisation made feasible for Eq. 8a) and solved with a
-continuation on the dynamics' weight. Loss of control (the newest data no longer explained,
+continuation on the dynamics' weight (a stream that begins in the air: once it has landed,
+on all of its data, ``_awaiting_landing``). Loss of control (the newest data no longer explained,
 non-finite numbers, a singular step, an emitted span far from its own mocap samples) is
 detected, reported and followed by the same initialisation from the newest data.
 """
