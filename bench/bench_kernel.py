@@ -41,19 +41,13 @@ def window_inputs(bag: Path, at_s: float) -> tuple[MovingHorizonEstimator, list[
     of its whole window there."""
     obs = read_observations(bag)
     est = MovingHorizonEstimator(load_subject_model(bag), MovingHorizonSettings())
-    order = sorted([(float(t), 0, i) for i, t in enumerate(obs.t_angles) if t < at_s]
-                   + [(float(t), 1, i) for i, t in enumerate(obs.t_wrench) if t < at_s])
-    for t, k, i in order:
-        if k == 0:
-            est.add_angles(t, obs.angles[i])
-        else:
-            est.add_wrench(t, obs.wrench[i])
-        est.poll()
-    w = est.window
-    if w is None:
+    a, w = obs.t_angles < at_s, obs.t_wrench < at_s
+    est.feed(obs.t_angles[a], obs.angles[a], obs.t_wrench[w], obs.wrench[w])
+    win = est.window
+    if win is None:
         raise SystemExit(f'no window at {at_s} s (a re-initialisation): try another --at')
     captured: list[np.ndarray] = []
-    kernel = w.kernel
+    kernel = win.kernel
     real = kernel.map
 
     def spy(*args: np.ndarray, copy: bool = True) -> list[np.ndarray]:
@@ -62,7 +56,7 @@ def window_inputs(bag: Path, at_s: float) -> tuple[MovingHorizonEstimator, list[
 
     kernel.map = spy
     try:
-        w.evaluate(w.segments, w.C, w.plate)
+        win.evaluate(win.segments, win.C, win.plate)
     finally:
         kernel.map = real
     return est, captured

@@ -20,7 +20,11 @@ import pytest
 from nmt_ros.model.point_map import PointMap
 from nmt_ros.records import Observations
 from nmt_ros.tracking.moving_horizon import spline
-from nmt_ros.tracking.moving_horizon.estimator import MovingHorizonEstimator, estimate
+from nmt_ros.tracking.moving_horizon.estimator import (
+    MovingHorizonEstimator,
+    estimate,
+    time_order,
+)
 from nmt_ros.tracking.moving_horizon.normal_equations import (
     RELATIVE_DAMPING,
     NormalEquations,
@@ -378,9 +382,7 @@ def _fed_in_lumps(model, obs, poll_now,
     ``poll_now(t)`` says so (the lumps a starved live node hands over), then finished."""
     est = MovingHorizonEstimator(model, settings)
     blocks = []
-    order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
-                   + [(t, 1, i) for i, t in enumerate(obs.t_wrench)])
-    for t, kind, i in order:
+    for t, kind, i in time_order(obs.t_angles, obs.t_wrench):
         (est.add_angles if kind == 0 else est.add_wrench)(
             t, obs.angles[i] if kind == 0 else obs.wrench[i])
         if poll_now(t):
@@ -675,14 +677,8 @@ def test_an_emitted_span_far_from_all_its_mocap_samples_is_not_published(stance,
     mocap sample in it is refused; a lone mocap spike, or a smaller offset, is not."""
     _, obs, _ = stance
     est = MovingHorizonEstimator(model, MovingHorizonSettings())
-    order = sorted([(t, 0, i) for i, t in enumerate(obs.t_angles) if t < 0.5]
-                   + [(t, 1, i) for i, t in enumerate(obs.t_wrench) if t < 0.5])
-    for t, k, i in order:
-        if k == 0:
-            est.add_angles(t, obs.angles[i])
-        else:
-            est.add_wrench(t, obs.wrench[i])
-        est.poll()
+    a, b = obs.t_angles < 0.5, obs.t_wrench < 0.5
+    est.feed(obs.t_angles[a], obs.angles[a], obs.t_wrench[b], obs.wrench[b])
     w = est.window
     span = w.t_start + 0.01 + np.arange(28) / 1080.0          # 25 ms: three mocap samples
     inside = (w.angles.t >= span[0]) & (w.angles.t <= span[-1])

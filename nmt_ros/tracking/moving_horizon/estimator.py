@@ -173,6 +173,19 @@ class MovingHorizonEstimator:
         if self.grid is None:
             self.grid = KnotGrid(float(t), 1.0 / self.settings.knot_rate_hz)
 
+    def feed(self, t_angles: np.ndarray, angles: np.ndarray, t_wrench: np.ndarray,
+             wrench: np.ndarray) -> list[EstimateBlock]:
+        """Add the samples of both streams in time order (``time_order``), polling after
+        each as a live node that keeps up does; the estimates that became available."""
+        blocks: list[EstimateBlock] = []
+        for t, k, i in time_order(t_angles, t_wrench):
+            if k == 0:
+                self.add_angles(t, angles[i])
+            else:
+                self.add_wrench(t, wrench[i])
+            blocks += self.poll()
+        return blocks
+
     # ------------------------------------------------------------------ stepping
     def poll(self) -> list[EstimateBlock]:
         """Run every update the data now allow; the estimates that became available."""
@@ -767,6 +780,13 @@ def _stage1_record(model: JumperModel, blocks: list[EstimateBlock], events: list
     return res
 
 
+def time_order(t_angles: np.ndarray, t_wrench: np.ndarray) -> list[tuple[float, int, int]]:
+    """The two streams' samples merged in time order: (t [s], stream (0 angles, 1 wrench),
+    index in its stream); at equal times angles first."""
+    return sorted([(float(t), 0, i) for i, t in enumerate(t_angles)]
+                  + [(float(t), 1, i) for i, t in enumerate(t_wrench)])
+
+
 def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
              t_wrench: np.ndarray, wrench: np.ndarray,
              settings: MovingHorizonSettings | None = None) -> MovingHorizonRun:
@@ -774,8 +794,7 @@ def estimate(model: JumperModel, t_angles: np.ndarray, angles: np.ndarray,
     object, the same updates). Samples at equal times: angles first."""
     c0 = time.process_time()
     est = MovingHorizonEstimator(model, settings)
-    order = sorted([(float(t), 0, i) for i, t in enumerate(t_angles)]
-                   + [(float(t), 1, i) for i, t in enumerate(t_wrench)])
+    order = time_order(t_angles, t_wrench)
     blocks: list[EstimateBlock] = []
     cpu, when = [], []
     for t, k, i in order:
