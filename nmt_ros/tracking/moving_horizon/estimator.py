@@ -600,6 +600,7 @@ class MovingHorizonEstimator:
         w.start_prior(self.plate_sd)
         w.plate_reversion_s = np.asarray(st.plate_reversion_s, dtype=float)
         w.joint_range = self.joint_range
+        w.extrapolation_velocity = st.extrapolation_velocity
         if st.arrival_noise_sd is not None:
             noise = np.empty(NV)
             noise[LAYOUT['q']] = np.r_[np.radians([st.arrival_noise_sd[0]] * 4),
