@@ -91,7 +91,11 @@ class OptimalTrackingSettings:
     # tracker's torques, is close: a small barrier keeps IPOPT near it) and IPOPT's 0.1 for
     # torque actuation (1e-3 took 520 iterations on one noise seed, 0.1 converges).
     mu_init: float | None = None
-    max_iter: int = 500        # typical: 30-60 iterations (tested over 30 noise realisations)
+    # typical: 30-60 iterations (tested over 30 noise realisations). From a tracker that lost
+    # control it can take many more: the reference jump at 3x the paper's noise (seed 9,
+    # test_optimal_tracker) exceeded 500 on one machine (rounding) and converged within
+    # 2000 in 51 s to 1.0 / 4.3 / 2.7 % of peak, as it had within 500 on another
+    max_iter: int = 2000
 
 
 @dataclass(frozen=True)
