@@ -35,7 +35,11 @@ from nmt_ros.tracking.moving_horizon.normal_equations import (
 from nmt_ros.tracking.moving_horizon.point_functions import collocation_function
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NB, NX
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
-from nmt_ros.tracking.moving_horizon.window import revert_toward_zero, within_joint_range
+from nmt_ros.tracking.moving_horizon.window import (
+    continued_control_points,
+    revert_toward_zero,
+    within_joint_range,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -707,3 +711,32 @@ def test_settings_overrides_parse_python_literals_and_name_bad_items():
     for bad in ('no_such_field=1', 'wrench_cutoff_hz', 'wrench_cutoff_hz=eighty'):
         with pytest.raises(ValueError, match=repr(bad).replace('(', r'\(')):
             MovingHorizonSettings.overrides([bad])
+
+
+def test_new_control_points_continue_the_curves_end_velocity_not_the_polygons_zigzag():
+    """Control points on a line plus an alternating +-delta (a zigzag the cubic B-spline's
+    values and end velocity do not see): the continued points follow the curve's end
+    velocity, evaluated independently by the spline's basis (``spline.basis`` at the last
+    segment's end), scaled by the
+    fraction, and hold the activations and the wrench; with fraction 1 and no zigzag the
+    spline continues the line exactly."""
+    from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV
+    from nmt_ros.tracking.moving_horizon.spline import basis
+
+    rng = np.random.default_rng(3)
+    n, dt = 8, 1.0 / 120.0
+    slope = rng.normal(size=NV) * 0.01
+    line = rng.normal(size=NV) + np.arange(n)[:, None] * slope
+    zigzag = 0.05 * (-1.0) ** np.arange(n)[:, None] * np.ones(NV)
+    B = basis(np.array([1.0]), dt, 2)[0]                 # [orders, 4] at u = 1
+    end_rate = B[1] @ (line + zigzag)[-4:] * dt          # per knot interval
+    assert np.allclose(end_rate, slope, atol=1e-9)       # the zigzag is invisible there
+    q, rest = LAYOUT['q'], np.r_[LAYOUT['a'], LAYOUT['s']]
+    for fraction in (1.0, 0.75):
+        out = continued_control_points(line + zigzag, 3, fraction)
+        assert np.array_equal(out[:n], line + zigzag)
+        steps = np.diff(out[n - 1:, q], axis=0)
+        assert np.allclose(steps, fraction * end_rate[q], atol=1e-12)
+        assert np.array_equal(out[n:][:, rest], np.repeat((line + zigzag)[-1:, rest], 3, 0))
+    straight = continued_control_points(line, 3, 1.0)
+    assert np.allclose(straight[:, q], (line[0] + np.arange(n + 3)[:, None] * slope)[:, q])

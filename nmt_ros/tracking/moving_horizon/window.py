@@ -194,17 +194,8 @@ class SlidingWindow:
                 arr[:n_live] = arr[live].copy()
             self.lin_seg[n_live:] = -1
             self.base = self.first
-        C = list(self.C)
-        q = LAYOUT['q']
-        # the curve's velocity at the window's end [per knot interval], shrunk
-        v = self.extrapolation_velocity * (C[-1][q] - C[-3][q]) / 2
-        for _ in range(add):
-            new = C[-1].copy()
-            new[q] = C[-1][q] + v
-            if self.joint_range is not None:
-                new[q] = within_joint_range(new[q], C[-1][q], *self.joint_range)
-            C.append(new)
-        self.C = np.array(C)
+        self.C = continued_control_points(self.C, add, self.extrapolation_velocity,
+                                          self.joint_range)
 
     def add_samples(self, angles: tuple[np.ndarray, np.ndarray],
                     wrench: tuple[np.ndarray, np.ndarray]) -> None:
@@ -480,6 +471,22 @@ class SlidingWindow:
     def values(self, t: np.ndarray, orders: int = 3) -> np.ndarray:
         """Spline values [P, orders, NV] at instants inside the window."""
         return evaluate(self.C, self.first, self.grid, np.asarray(t, dtype=float), orders)
+
+
+def continued_control_points(C: np.ndarray, add: int, fraction: float,
+                             joint_range: tuple[np.ndarray, np.ndarray] | None = None,
+                             ) -> np.ndarray:
+    """C [n, NV] (n >= 3) with ``add`` control points appended (``SlidingWindow.extend``):
+    q continues at ``fraction`` x the cubic B-spline's velocity at its end, (C[-1] - C[-3]) /
+    2 per knot interval, within ``joint_range`` (``within_joint_range``); a and s held."""
+    q = LAYOUT['q']
+    v = fraction * (C[-1, q] - C[-3, q]) / 2
+    out = np.concatenate([C, np.repeat(C[-1:], add, axis=0)])
+    for k in range(C.shape[0], C.shape[0] + add):
+        out[k, q] = out[k - 1, q] + v
+        if joint_range is not None:
+            out[k, q] = within_joint_range(out[k, q], out[k - 1, q], *joint_range)
+    return out
 
 
 def within_joint_range(q_new: np.ndarray, q_last: np.ndarray, lower: np.ndarray,
