@@ -379,6 +379,50 @@ def test_a_singular_marginalisation_or_start_is_reported_and_tracking_goes_on(
     assert (err < np.array([4.0, 6.0, 6.0])).all(), err
 
 
+def _breaking_unchecked_step(method, at_call: int):
+    """``SlidingWindow.step`` whose ``at_call``-th unchecked step (1-based) also throws the
+    foot's newest control points 3 rad off (a 360 rad/s spin: outside the envelope)."""
+    calls = [0]
+
+    def wrapped(self, segments, damping, dynamics_scale=1.0, check=True):
+        out = method(self, segments, damping, dynamics_scale, check)
+        if not check:
+            calls[0] += 1
+            if calls[0] == at_call:
+                self.C = self.C.copy()
+                self.C[-3:, 0] += 3.0
+        return out
+    return wrapped
+
+
+@pytest.mark.parametrize('undo', [True, False])
+def test_a_step_that_breaks_the_estimate_is_taken_back_not_a_loss_of_control(
+        stance, model, monkeypatch, undo):
+    """An update's unchecked Gauss-Newton step that leaves the physical envelope is taken
+    back and replaced by checked iterations from where it began (reported as a warning):
+    no re-initialisation, no instant withheld, the torques as accurate as without it.
+    With ``undo_broken_steps`` off the same step is a loss of control."""
+    from nmt_ros.tracking.moving_horizon.window import SlidingWindow
+    held, obs, _ = stance
+    monkeypatch.setattr(SlidingWindow, 'step',
+                        _breaking_unchecked_step(SlidingWindow.step, 20))
+    run = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
+                   MovingHorizonSettings(undo_broken_steps=undo))
+    errors = [e for e in run.events if e.level == 'error']
+    taken_back = [e for e in run.events if 'taken back' in e.message]
+    if not undo:
+        assert len(errors) == 1 and 'segment rate' in errors[0].message, errors
+        assert run.restarts == 1 and not taken_back
+        return
+    assert not errors and run.restarts == 0, errors
+    assert len(taken_back) == 1 and 'segment rate' in taken_back[0].message, taken_back
+    ref = run.refined
+    assert np.array_equal(ref.t, obs.t_wrench)
+    after = ref.t >= 0.2
+    err = np.abs(ref.tau[after] - held.tau[0]).mean(0)
+    assert (err < np.array([4.0, 6.0, 6.0])).all(), err
+
+
 def _fed_in_lumps(model, obs, poll_now,
                   settings: MovingHorizonSettings | None = None,
                   ) -> tuple[MovingHorizonEstimator, list]:

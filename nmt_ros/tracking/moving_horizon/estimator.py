@@ -23,6 +23,7 @@ detected, reported and followed by the same initialisation from the newest data.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import time
 
@@ -346,7 +347,11 @@ class MovingHorizonEstimator:
         w = self.window
         w.extend(self.grid.segment_of(t_u))
         w.add_samples(angles, wrench)
+        before_step = (w.C, w.plate, self.damping)
         why = self._gauss_newton(t_u, self._to_relinearise(), st.check_steps)
+        if why is not None and st.undo_broken_steps and not st.check_steps:
+            why = self._undo_step(t_u, before_step, why)
+            before_step = None
         if (why is None and st.rescue_iterations
                 and self._newest_cost_per_row() > st.rescue_cost_per_row):
             why = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True,
@@ -358,7 +363,12 @@ class MovingHorizonEstimator:
                               'observations')
             if not self._start(t_u):
                 return []
-        blocks = self._emit(t_u)
+            before_step = None
+        undo = None
+        if before_step is not None and st.undo_broken_steps and not st.check_steps:
+            def undo(why: str) -> str | None:
+                return self._undo_step(t_u, before_step, why)
+        blocks = self._emit(t_u, undo=undo)
         if self.window is not None:
             try:
                 self._slide(t_u)
@@ -368,6 +378,26 @@ class MovingHorizonEstimator:
                 self._drop_window(t_u, f'loss of control: marginalisation failed ({exc}); '
                                   're-initialising at the next update')
         return blocks
+
+    def _undo_step(self, t_u: float, before: tuple[np.ndarray, np.ndarray, float],
+                   why: str) -> str | None:
+        """Take back the update's unchecked Gauss-Newton step (it made the estimate
+        unusable: outside the envelope, or estimates that cannot be published) and try the
+        rescue's checked Levenberg-Marquardt iterations from where the step began instead;
+        why the result is still unusable (None: it is usable). The step changed only the
+        control points and plate parameters (the kept linearisations stay valid models), so
+        restoring them restores where the update began."""
+        w, st = self.window, self.settings
+        w.C, w.plate, self.damping = before
+        if not st.rescue_iterations:
+            return why
+        still = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True,
+                                   st.rescue_iterations)
+        if still is None:
+            self.events.append(EstimatorEvent(
+                'warn', t_u, f"the update's step taken back ({why}): checked iterations "
+                'instead', {}))
+        return still
 
     def _drop_window(self, t: float, message: str, values: dict | None = None) -> None:
         """A loss of control (or a skip): say it (an error at data time t [s]), drop the
@@ -480,7 +510,11 @@ class MovingHorizonEstimator:
             w.drop_before(keep_from, airborne=airborne)
 
     # ------------------------------------------------------------------ outputs
-    def _emit(self, t_u: float, final: bool = False) -> list[EstimateBlock]:
+    def _emit(self, t_u: float, final: bool = False,
+              undo: Callable[[str], str | None] | None = None) -> list[EstimateBlock]:
+        """The estimates that became available at update time t_u [s] (``final``: all the
+        window holds). Estimates that cannot be published drop the window, unless ``undo``
+        (taking back the update's step, ``_undo_step``) makes them publishable."""
         st = self.settings
         lo = self.window.t_start
         ready = {}
@@ -505,6 +539,12 @@ class MovingHorizonEstimator:
         kinds = list(ready)
         both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
         why = self._implausible(both) or self._far_from_mocap([ready[k] for k in kinds])
+        if why is not None and undo is not None:
+            why = undo(why)
+            if why is None:
+                both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
+                why = self._implausible(both) or self._far_from_mocap(
+                    [ready[k] for k in kinds])
         if why is not None:
             # never published: the instants are reported as lost and the window restarts
             self._drop_window(t_u, f'loss of control: {why}; {both.t.size} instants withheld, '

@@ -145,6 +145,10 @@ class MovingHorizonSettings:
     # 16 realisations of bags/routine, re-initialisations a minute 1.25 at 1.0, 0.19 at
     # 0.75, 0.50 at 0.5 (the estimator's muscle forces 7.6 / 7.8 / 8.6 % F0)
     extrapolation_velocity: float = 0.75
+    # an update whose (unchecked) step leaves the physical envelope or yields estimates that
+    # cannot be published is taken back and replaced by the rescue's checked iterations from
+    # where it began, before the window is given up (MovingHorizonEstimator._undo_step)
+    undo_broken_steps: bool = True
     relinearise_s: float = 0.03        # the newest data span re-linearised at every update
     relinearise_older: int = 2         # older segments re-linearised per update, in turn
     damping: float = 1e-3              # Levenberg-Marquardt, relative to diag(H)
