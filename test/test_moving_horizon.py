@@ -379,9 +379,9 @@ def test_a_singular_marginalisation_or_start_is_reported_and_tracking_goes_on(
     assert (err < np.array([4.0, 6.0, 6.0])).all(), err
 
 
-def _breaking_unchecked_step(method, at_call: int):
-    """``SlidingWindow.step`` whose ``at_call``-th unchecked step (1-based) also throws the
-    foot's newest control points 3 rad off (a 360 rad/s spin: outside the envelope)."""
+def _breaking_unchecked_step(method, at_call: int, column: int, by: float):
+    """``SlidingWindow.step`` whose ``at_call``-th unchecked step (1-based) also moves the
+    newest control points' variable ``column`` by ``by``."""
     calls = [0]
 
     def wrapped(self, segments, damping, dynamics_scale=1.0, check=True):
@@ -390,32 +390,37 @@ def _breaking_unchecked_step(method, at_call: int):
             calls[0] += 1
             if calls[0] == at_call:
                 self.C = self.C.copy()
-                self.C[-3:, 0] += 3.0
+                self.C[-3:, column] += by
         return out
     return wrapped
 
 
 @pytest.mark.parametrize('undo', [True, False])
+@pytest.mark.parametrize('column, by, why', [
+    (0, 3.0, 'segment rate'),            # the foot thrown 3 rad: outside the envelope
+    (6 + 5, 4.0, 'muscle force'),        # the vasti's activation 4: refused at emission
+])
 def test_a_step_that_breaks_the_estimate_is_taken_back_not_a_loss_of_control(
-        stance, model, monkeypatch, undo):
-    """An update's unchecked Gauss-Newton step that leaves the physical envelope is taken
-    back and replaced by checked iterations from where it began (reported as a warning):
-    no re-initialisation, no instant withheld, the torques as accurate as without it.
-    With ``undo_broken_steps`` off the same step is a loss of control."""
+        stance, model, monkeypatch, undo, column, by, why):
+    """An update's unchecked Gauss-Newton step that leaves the physical envelope, or gives
+    estimates the emission check refuses, is taken back and replaced by checked iterations
+    from where it began (reported as a warning): no re-initialisation, no instant withheld,
+    the torques as accurate as without it. With ``undo_broken_steps`` off the same step is a
+    loss of control."""
     from nmt_ros.tracking.moving_horizon.window import SlidingWindow
     held, obs, _ = stance
     monkeypatch.setattr(SlidingWindow, 'step',
-                        _breaking_unchecked_step(SlidingWindow.step, 20))
+                        _breaking_unchecked_step(SlidingWindow.step, 20, column, by))
     run = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench,
                    MovingHorizonSettings(undo_broken_steps=undo))
     errors = [e for e in run.events if e.level == 'error']
     taken_back = [e for e in run.events if 'taken back' in e.message]
     if not undo:
-        assert len(errors) == 1 and 'segment rate' in errors[0].message, errors
+        assert len(errors) == 1 and why in errors[0].message, errors
         assert run.restarts == 1 and not taken_back
         return
     assert not errors and run.restarts == 0, errors
-    assert len(taken_back) == 1 and 'segment rate' in taken_back[0].message, taken_back
+    assert len(taken_back) == 1 and why in taken_back[0].message, taken_back
     ref = run.refined
     assert np.array_equal(ref.t, obs.t_wrench)
     after = ref.t >= 0.2
