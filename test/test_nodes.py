@@ -670,7 +670,8 @@ def test_the_offline_estimator_runs_with_the_settings_the_node_reported(ros_cont
     from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
     given = {'lag_s': 0.06, 'window_s': 0.15, 'update_rate_hz': 30.0, 'iterations': 2,
-             'wrench_cutoff_hz': 20.0, 'angle_rate_hz': 100.0, 'wrench_rate_hz': 1000.0}
+             'wrench_cutoff_hz': 20.0, 'angle_rate_hz': 100.0, 'wrench_rate_hz': 1000.0,
+             'excitation_weight': 200.0}
     node = SkeletalTrackerNode(context=ros_context, parameter_overrides=params(
         estimator='mhe', **given))
     try:
@@ -681,6 +682,7 @@ def test_the_offline_estimator_runs_with_the_settings_the_node_reported(ros_cont
         rebuilt = mhe_settings_from_status(values)
         assert rebuilt == node.mhe_settings
         assert rebuilt.wrench_cutoff_hz == 20.0 and rebuilt.iterations == 2
+        assert rebuilt.excitation_weight == 200.0
     finally:
         node.on_shutdown(True)
         node.destroy_node()

@@ -108,6 +108,12 @@ class SkeletalTrackerNode(TrackerNode):
                                   'smoothing-spline prior [Hz] (at most 0.8 x the force '
                                   "plate's Nyquist frequency; lower it for noisy lab plates)",
                                   low=0.1, high=50000.0)
+        self.excitation_weight = p('excitation_weight', d.excitation_weight, 'mhe: effort '
+                                   'weight w_u of the excitations [1/s]: how the redundant '
+                                   'muscles share the torques (README, "Known limitations": '
+                                   '200 gave the estimator\'s own muscle forces 4.3 instead of '
+                                   '7.9 % F0 at equal torques, with more losses of control)',
+                                   low=0.0, high=1e6)
         self.airborne_start_wait_s = p(
             'airborne_start_wait_s', d.airborne_start_wait_s, 'mhe: a stream that begins in '
             'the air starts on its first landing if one comes within this much data [s] (its '
@@ -177,6 +183,7 @@ class SkeletalTrackerNode(TrackerNode):
                                     update_rate_hz=self.update_rate_hz,
                                     iterations=self.iterations,
                                     wrench_cutoff_hz=self.wrench_cutoff_hz,
+                                    excitation_weight=self.excitation_weight,
                                     airborne_start_wait_s=self.airborne_start_wait_s,
                                     angle_rate_hz=self.angle_rate_hz,
                                     wrench_rate_hz=self.wrench_rate_hz)
@@ -184,6 +191,7 @@ class SkeletalTrackerNode(TrackerNode):
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
             'wrench_cutoff_hz': self.wrench_cutoff_hz,
+            'excitation_weight': self.excitation_weight,
             'airborne_start_wait_s': self.airborne_start_wait_s,
             'slow_backlog_s': self.slow_backlog_s, 'max_backlog_s': self.max_backlog_s,
             'side_rate_hz': self.side_rate_hz,
