@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 import time
 
 import numpy as np
@@ -347,9 +348,11 @@ class MovingHorizonEstimator:
         w = self.window
         w.extend(self.grid.segment_of(t_u))
         w.add_samples(angles, wrench)
-        before_step = (w.C, w.plate, self.damping)
+        # where the update's unchecked step begins (None: its steps are checked or kept)
+        before_step = ((w.C, w.plate, self.damping)
+                       if st.undo_broken_steps and not st.check_steps else None)
         why = self._gauss_newton(t_u, self._to_relinearise(), st.check_steps)
-        if why is not None and st.undo_broken_steps and not st.check_steps:
+        if why is not None and before_step is not None:
             why = self._undo_step(t_u, before_step, why)
             before_step = None
         if (why is None and st.rescue_iterations
@@ -364,11 +367,8 @@ class MovingHorizonEstimator:
             if not self._start(t_u):
                 return []
             before_step = None
-        undo = None
-        if before_step is not None and st.undo_broken_steps and not st.check_steps:
-            def undo(why: str) -> str | None:
-                return self._undo_step(t_u, before_step, why)
-        blocks = self._emit(t_u, undo=undo)
+        blocks = self._emit(t_u, undo=None if before_step is None
+                            else partial(self._undo_step, t_u, before_step))
         if self.window is not None:
             try:
                 self._slide(t_u)
@@ -537,14 +537,16 @@ class MovingHorizonEstimator:
         if not ready:
             return []
         kinds = list(ready)
-        both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
-        why = self._implausible(both) or self._far_from_mocap([ready[k] for k in kinds])
+        spans = [ready[k] for k in kinds]
+
+        def judged() -> tuple[EstimateBlock, str | None]:
+            both = self.estimates('', np.concatenate(spans))
+            return both, self._implausible(both) or self._far_from_mocap(spans)
+        both, why = judged()
         if why is not None and undo is not None:
             why = undo(why)
             if why is None:
-                both = self.estimates('', np.concatenate([ready[k] for k in kinds]))
-                why = self._implausible(both) or self._far_from_mocap(
-                    [ready[k] for k in kinds])
+                both, why = judged()
         if why is not None:
             # never published: the instants are reported as lost and the window restarts
             self._drop_window(t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
