@@ -165,3 +165,63 @@ def test_subject_scaling_against_opensim(tmp_path: Path) -> None:
     print(dict(zip(MUSCLES, np.round(err, 3))))
     bound = np.array([0.01, 0.06, 0.01, 0.01, 0.05, 0.05, 0.17, 0.17, 0.05])
     assert np.all(err < bound), dict(zip(MUSCLES, err))
+
+
+def test_path_from_moment_arms_recovers_a_known_path() -> None:
+    """Moment arms sampled from a known two-coordinate path (the hamstrings' with every
+    non-constant coefficient changed) give back that path's moment arms between the samples,
+    and the fitted path keeps the original's length at the zero pose."""
+    from dataclasses import replace
+
+    from nmt_ros.model.subject import _gradient_rows, path_from_moment_arms
+
+    path = load_parameters().muscles.paths['hams']
+    rng = np.random.default_rng(3)
+    moved = path.coefficients * (1 + 0.3 * rng.standard_normal(path.coefficients.size))
+    moved[path.exponents.sum(axis=1) == 0] = 0.5          # another length at the zero pose
+    target = replace(path, coefficients=moved)
+    grid = np.radians(np.array(np.meshgrid(np.arange(-20, 121, 5.0), np.arange(-120, 6, 5.0),
+                                           indexing='ij')).reshape(2, -1).T)
+    def arms(p, q):
+        return -np.einsum('nkt,t->nk', _gradient_rows(p.exponents, q), p.coefficients)
+    fitted, rms = path_from_moment_arms(path, grid, arms(target, grid))
+    assert rms < 1e-9
+    between = grid[:-1] + np.radians([2.5, 2.5])
+    np.testing.assert_allclose(arms(fitted, between), arms(target, between), atol=1e-9)
+    zero = fitted.exponents.sum(axis=1) == 0
+    assert fitted.coefficients[zero] == pytest.approx(
+        path.coefficients[path.exponents.sum(axis=1) == 0])
+
+
+def test_subject_paths_are_the_subject_models_own_moment_arms() -> None:
+    """The shipped drop jump's subject (bags/real_dropjump/subject.yaml, from `nmt
+    import-lab --model final.osim`) has the moment arms of its .osim's own muscles, lumped
+    as the jumper lumps them (F0-weighted), checked against OpenSim between the fit's grid
+    points; its hip extensor keeps its moment arm in deep flexion, where gait10dof18musc's
+    glut_max (no wrapping surface) loses it."""
+    from nmt_ros.model.subject import moment_arm_spec
+    from nmt_ros.osim.subject_process import subject_moment_arms
+
+    subject = load_subject_model(REPO / 'bags' / 'real_dropjump')
+    assert set(read_subject(REPO / 'bags' / 'real_dropjump')[1].paths) == set(MUSCLES)
+    spec = moment_arm_spec()
+    spec['step_deg'] = 7.0                      # off the fit's 5 deg grid
+    res = subject_moment_arms(REAL_MODEL, spec)
+    assert not res['missing']
+    joint = {'ankle_angle': 0, 'knee_angle': 1, 'hip_flexion': 2}
+    worst = {}
+    for name, a in res['muscles'].items():
+        k = MUSCLES.index(name)
+        th = np.zeros((len(a['points_rad']), 3))
+        for j, c in enumerate(a['coordinates']):
+            th[:, joint[c]] = np.asarray(a['points_rad'])[:, j]
+        ours = np.array([np.asarray(subject.moment_arms(t))[k, [joint[c] for c in
+                                                                  a['coordinates']]]
+                         for t in th])
+        worst[name] = float(np.abs(ours - np.asarray(a['moment_arms_m'])).max())
+    print({n: round(1e3 * v, 2) for n, v in worst.items()})
+    assert max(worst.values()) < 0.002, worst
+    deep = np.radians([0.0, -90.0, 115.0])      # ankle, knee, hip: a deep landing
+    gmax = MUSCLES.index('gmax')
+    assert float(np.asarray(subject.moment_arms(deep))[gmax, 2]) < -0.02
+    assert abs(float(np.asarray(default_model().moment_arms(deep))[gmax, 2])) < 0.005

@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--up', default=None, help='lab axis pointing up, e.g. +y or +z')
     parser.add_argument('--max-gap', type=float, default=None,
                         help='longest marker gap filled by interpolation [s] (default 0.1)')
+    parser.add_argument('--jumper-paths', action='store_true',
+                        help="keep the scaled jumper's muscle paths (default with --model: "
+                        "moment arms from the model's own muscles, see 'Lab recordings')")
     parser.add_argument('--out', required=True, type=Path, help='bag folder to write')
     parser.add_argument('--force', action='store_true', help='replace an existing --out')
 
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
                              external_loads=args.external_loads, model=args.model,
                              mass_kg=args.mass, height_m=args.height, name=args.name,
                              marker_map=args.marker_map, forward=args.forward, up=args.up,
-                             max_gap_s=args.max_gap)
+                             max_gap_s=args.max_gap, subject_paths=not args.jumper_paths)
         lab.write_lab_bag(out, rec)
     except ValueError as err:
         print(f'nmt import-lab: error: {err}', file=sys.stderr)

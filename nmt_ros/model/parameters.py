@@ -203,7 +203,8 @@ def parameters_data(params: JumperParameters) -> dict:
     dm['max_isometric_force_one_leg'] = [float(v) for v in m.f0 / per_leg]
     dm['optimal_fiber_length'] = [float(v) for v in m.l_opt]
     dm['tendon_slack_length'] = [float(v) for v in m.l_slack]
-    for name, path in m.paths.items():
+    for name, path in m.paths.items():     # a subject's own path may have other terms
+        d['paths'][name]['exponents'] = [[int(e) for e in row] for row in path.exponents]
         d['paths'][name]['coefficients'] = [float(v) for v in path.coefficients]
     d['gravity']['value'] = float(params.gravity)
     return d

@@ -16,7 +16,11 @@ A :class:`Subject` holds what is measured of a person (from a scaled OpenSim mod
   ``k_mus`` the mean length factor of the segments the muscle runs along; ``l_opt`` and
   ``l_slack`` scale alike (normalised fibre lengths unchanged at every pose);
 * strength: ``F0' = F0 (M / M_jumper) ** (2/3)``; passive joint torques by that factor times the
-  leg's length factor.
+  leg's length factor;
+* with the subject's own .osim (Rajagopal family), the paths of ``subject_paths`` take its
+  muscles' moment arms (:func:`paths_from_moment_arms`): the lumped path keeps the scaled
+  jumper's length at the zero pose and its gradient is fitted to the F0-weighted mean moment
+  arms of the muscles it lumps (``SubjectScale.paths``, stored in ``subject.yaml``).
 
 A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
 :func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
@@ -24,14 +28,20 @@ shipped jumper when the bag has no subject file).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import os
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from nmt_ros.model.parameters import MUSCLES, SEGMENTS, JumperParameters, load_parameters
+from nmt_ros.model.parameters import (
+    MUSCLES,
+    SEGMENTS,
+    JumperParameters,
+    MusclePath,
+    load_parameters,
+)
 
 SCALING_FILE = Path(__file__).resolve().parent / 'data' / 'subject_scaling.yaml'
 SUBJECT_FILE = 'subject.yaml'
@@ -66,11 +76,17 @@ class SubjectScale:
     strength: float                   # F0 factor
     passive: float                    # passive joint torque factor
     total_mass: float                 # subject / jumper total mass
+    # paths from the subject's own model, replacing the scaled jumper's (subject units, m):
+    # {muscle: {'coordinates', 'exponents', 'coefficients', 'source', 'moment_arm_rms_m'}}
+    paths: dict[str, dict] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return {'mass': dict(self.mass), 'length': dict(self.length),
-                'muscle_length': dict(self.muscle_length), 'strength': self.strength,
-                'passive': self.passive, 'total_mass': self.total_mass}
+        out = {'mass': dict(self.mass), 'length': dict(self.length),
+               'muscle_length': dict(self.muscle_length), 'strength': self.strength,
+               'passive': self.passive, 'total_mass': self.total_mass}
+        if self.paths:
+            out['paths'] = {n: dict(p) for n, p in self.paths.items()}
+        return out
 
 
 def subject_from_mass_height(mass_kg: float, height_m: float, name: str = 'subject',
@@ -161,9 +177,95 @@ def scale_parameters(params: JumperParameters, scale: SubjectScale) -> JumperPar
     kmus = np.array([scale.muscle_length[n] for n in m.names])
     paths = {n: replace(path, coefficients=path.coefficients * scale.muscle_length[n])
              for n, path in m.paths.items()}
+    for n, own in scale.paths.items():      # the subject's own geometry
+        coords = tuple(own['coordinates'])
+        if coords != paths[n].coordinates:
+            raise ValueError(f'subject path of {n}: coordinates {coords}, the jumper\'s are '
+                             f'{paths[n].coordinates}')
+        paths[n] = replace(paths[n], exponents=np.asarray(own['exponents'], dtype=int).reshape(
+            -1, len(coords)), coefficients=np.asarray(own['coefficients'], dtype=float))
     muscles = replace(m, f0=m.f0 * scale.strength, l_opt=m.l_opt * kmus,
                       l_slack=m.l_slack * kmus, paths=paths)
     return replace(params, segments=segs, contact=contact, passive=passive, muscles=muscles)
+
+
+def moment_arm_spec(params: JumperParameters | None = None, rules: dict | None = None) -> dict:
+    """What ``nmt_ros.osim.subject_process.subject_moment_arms`` samples: the groups of
+    ``subject_paths``, each muscle's path coordinates, the paths' ranges [deg] and the step."""
+    p = params or load_parameters()
+    r = rules or load_rules()
+    names = [n for n in r['subject_paths'] if n in p.muscles.paths]
+    ranges: dict[str, list[float]] = {}
+    for n in names:
+        path = p.muscles.paths[n]
+        for c, rng in zip(path.coordinates, path.fit_range):
+            ranges[c] = [float(v) for v in np.round(np.degrees(rng), 6)]
+    return {'groups': {n: list(r['muscle_groups'][n]) for n in names},
+            'coordinates': {n: list(p.muscles.paths[n].coordinates) for n in names},
+            'ranges_deg': ranges, 'step_deg': float(r['subject_path_step_deg'])}
+
+
+def _gradient_rows(exponents: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """d/dq_k of every monomial prod_j q_j ** e_tj at the points [n, d]: [n, d, terms]."""
+    n, d = points.shape
+    out = np.zeros((n, d, exponents.shape[0]))
+    for k in range(d):
+        e = exponents.copy()
+        factor = e[:, k].astype(float)
+        e[:, k] = np.maximum(e[:, k] - 1, 0)
+        out[:, k, :] = factor * np.prod(points[:, None, :] ** e[None, :, :], axis=2)
+    return out
+
+
+def _monomials(coordinates: int, degree: int) -> np.ndarray:
+    """Every exponent vector of total degree <= degree [terms, coordinates]."""
+    grids = np.array(np.meshgrid(*[np.arange(degree + 1)] * coordinates, indexing='ij'))
+    e = grids.reshape(coordinates, -1).T
+    return e[e.sum(axis=1) <= degree]
+
+
+def path_from_moment_arms(path: MusclePath, points: np.ndarray, arms: np.ndarray,
+                          max_degree: int = 9, tolerance_m: float = 5e-4,
+                          ) -> tuple[MusclePath, float]:
+    """A path with ``path``'s length at the zero pose whose moment arms r_j = -dl/dq_j fit
+    ``arms`` [n, d] (m) at ``points`` [n, d] (rad) in least squares: the lowest total degree
+    from the path's own up to ``max_degree`` whose RMS moment-arm error is within
+    ``tolerance_m``. Returns the path and that RMS [m]."""
+    points, arms = np.asarray(points, dtype=float), np.asarray(arms, dtype=float)
+    d = points.shape[1]
+    zero = np.zeros((1, d))
+    l0 = float(sum(c * np.prod(zero[0] ** e) for c, e in zip(path.coefficients,
+                                                                path.exponents)))
+    best = None
+    for degree in range(max(int(path.exponents.sum(axis=1).max()), 1), max_degree + 1):
+        e = _monomials(d, degree)
+        rows = _gradient_rows(e, points).reshape(-1, e.shape[0])
+        free = e.sum(axis=1) > 0
+        c = np.zeros(e.shape[0])
+        c[~free] = l0
+        c[free] = np.linalg.lstsq(rows[:, free], -arms.reshape(-1), rcond=None)[0]
+        rms = float(np.sqrt(np.mean((rows @ c + arms.reshape(-1)) ** 2)))
+        best = (replace(path, exponents=e, coefficients=c), rms)
+        if rms <= tolerance_m:
+            break
+    assert best is not None
+    return best
+
+
+def paths_from_moment_arms(params: JumperParameters, arms: dict) -> dict[str, dict]:
+    """``SubjectScale.paths`` from ``subject_moment_arms``'s result, for the subject-scaled
+    ``params`` (their paths give each muscle's length at the zero pose)."""
+    out = {}
+    for n, a in arms['muscles'].items():
+        path, rms = path_from_moment_arms(params.muscles.paths[n], np.asarray(a['points_rad']),
+                                          np.asarray(a['moment_arms_m']))
+        out[n] = {'coordinates': list(path.coordinates),
+                  'exponents': path.exponents.tolist(),
+                  'coefficients': [float(v) for v in path.coefficients],
+                  'source': f"moment arms of {'+'.join(a['members'])} (F0-weighted) in "
+                            f"{Path(arms['model']).name}",
+                  'moment_arm_rms_m': round(rms, 6)}
+    return out
 
 
 def subject_parameters(subject: Subject, params: JumperParameters | None = None,
@@ -225,7 +327,11 @@ def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
                          length={n: float(k['length'][n]) for n in SEGMENTS},
                          muscle_length={n: float(k['muscle_length'][n]) for n in MUSCLES},
                          strength=float(k['strength']), passive=float(k['passive']),
-                         total_mass=float(k['total_mass']))
+                         total_mass=float(k['total_mass']),
+                         paths={n: dict(v) for n, v in (k.get('paths') or {}).items()})
+    unknown = [n for n in scale.paths if n not in MUSCLES]
+    if unknown:
+        raise ValueError(f'{path}: paths for unknown muscles {unknown}')
     return subject, scale
 
 

@@ -6,6 +6,8 @@ Run as subprocesses (OpenSim cannot share a process with casadi)::
     python -m nmt_ros.osim.subject kinematics --model M.osim --ik IK.mot --out OUT.npz
     python -m nmt_ros.osim.subject scaled-jumper --model gait10dof18musc.osim --spec S.json \
         --out OUT.json     (the cross-check of nmt_ros.model.subject: see scaled_jumper)
+    python -m nmt_ros.osim.subject moment-arms --model M.osim --spec S.json --out OUT.json
+                           (the subject's muscles lumped as the jumper's: group_moment_arms)
 
 Models named as OpenSim's gait2392 / gait10dof18musc / Rajagopal (2015) lineage are
 understood: bodies ``pelvis``, ``torso``, ``femur_{r,l}``, ``tibia_{r,l}``, ``talus_{r,l}``,
@@ -269,6 +271,54 @@ def scaled_jumper(source: str | Path, length: dict[str, float], mass_kg: float,
     return out
 
 
+def group_moment_arms(source: str | Path, groups: dict[str, list[str]],
+                      coordinates: dict[str, list[str]], ranges_deg: dict[str, list[float]],
+                      step_deg: float) -> dict:
+    """Moment arms of the subject's own muscles lumped as the jumper lumps them: for each
+    jumper muscle whose group (``groups``: right-leg muscle names without ``_r``) the model
+    has in full, on a grid over its ``coordinates`` (jumper coordinate names, ``ranges_deg``
+    in the jumper's convention, every other joint at 0), the F0-weighted mean moment arm
+    [m] about each of them. Coordinate signs are the jumper's (gait10dof18musc): a model
+    whose knee_angle_r flexes positive (Rajagopal: range 0..140 deg) is posed at -knee and
+    its knee moment arms negated. Muscles whose group is incomplete are listed as missing."""
+    model, state = load(source)
+    cs = model.getCoordinateSet()
+    muscles = model.getMuscles()
+    sign = {}
+    for c in ('hip_flexion', 'knee_angle', 'ankle_angle'):
+        if not cs.contains(c + '_r'):
+            raise ValueError(f'{source}: no coordinate {c}_r')
+        coord = cs.get(c + '_r')
+        flexion_positive = (c == 'knee_angle'
+                            and coord.getRangeMax() > abs(coord.getRangeMin()))
+        sign[c] = -1.0 if flexion_positive else 1.0
+    out: dict = {'model': str(source), 'coordinate_sign': sign, 'muscles': {}, 'missing': {}}
+    for lumped, members in groups.items():
+        names = [m + '_r' for m in members]
+        absent = [n for n in names if not muscles.contains(n)]
+        if absent:
+            out['missing'][lumped] = absent
+            continue
+        f0 = np.array([muscles.get(n).getMaxIsometricForce() for n in names])
+        coords = list(coordinates[lumped])
+        axes = [np.radians(np.arange(ranges_deg[c][0], ranges_deg[c][1] + 1e-9, step_deg))
+                for c in coords]
+        points = np.array(np.meshgrid(*axes, indexing='ij')).reshape(len(coords), -1).T
+        arms = np.zeros(points.shape)
+        for i, pose in enumerate(points):
+            for c in ('hip_flexion', 'knee_angle', 'ankle_angle'):
+                value = pose[coords.index(c)] if c in coords else 0.0
+                cs.get(c + '_r').setValue(state, sign[c] * float(value))
+            model.realizePosition(state)
+            for k, c in enumerate(coords):
+                r = [muscles.get(n).getGeometryPath().computeMomentArm(state, cs.get(c + '_r'))
+                     for n in names]
+                arms[i, k] = sign[c] * float(np.dot(f0, r) / f0.sum())
+        out['muscles'][lumped] = {'members': names, 'f0_n': f0.tolist(), 'coordinates': coords,
+                                  'points_rad': points.tolist(), 'moment_arms_m': arms.tolist()}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m nmt_ros.osim.subject')
     sub = parser.add_subparsers(dest='cmd', required=True)
@@ -285,6 +335,11 @@ def main(argv: list[str] | None = None) -> int:
                    help='JSON: {"length": {segment: factor}, "mass_kg": M, "poses": [[..]], '
                    '"muscles": [names]}')
     p.add_argument('--out', required=True)
+    p = sub.add_parser('moment-arms', help="the subject's muscles lumped as the jumper's")
+    p.add_argument('--model', required=True)
+    p.add_argument('--spec', required=True, help='JSON: {"groups": {...}, "coordinates": '
+                   '{...}, "ranges_deg": {...}, "step_deg": S} (see group_moment_arms)')
+    p.add_argument('--out', required=True)
     args = parser.parse_args(argv)
     try:
         if args.cmd == 'measure':
@@ -293,6 +348,11 @@ def main(argv: list[str] | None = None) -> int:
             spec = json.loads(Path(args.spec).read_text())
             res = scaled_jumper(args.model, spec['length'], spec['mass_kg'],
                                 np.asarray(spec['poses'], dtype=float), spec['muscles'])
+            Path(args.out).write_text(json.dumps(res))
+        elif args.cmd == 'moment-arms':
+            spec = json.loads(Path(args.spec).read_text())
+            res = group_moment_arms(args.model, spec['groups'], spec['coordinates'],
+                                    spec['ranges_deg'], float(spec['step_deg']))
             Path(args.out).write_text(json.dumps(res))
         else:
             np.savez(args.out, **kinematics(args.model, args.ik))

@@ -41,3 +41,15 @@ def ik_landmarks(model: str | os.PathLike, ik: str | os.PathLike) -> dict[str, n
         _run(['kinematics', '--model', str(model), '--ik', str(ik), '--out', str(out)])
         with np.load(out) as d:
             return {k: d[k] for k in d.files}
+
+
+def subject_moment_arms(model: str | os.PathLike, spec: dict) -> dict:
+    """``python -m nmt_ros.osim.subject moment-arms`` on a model (see
+    ``nmt_ros.osim.subject.group_moment_arms`` for ``spec`` and the result)."""
+    if not Path(model).exists():
+        raise ValueError(f'{model}: no such model file')
+    with tempfile.TemporaryDirectory() as tmp:
+        spec_file, out = Path(tmp) / 'spec.json', Path(tmp) / 'arms.json'
+        spec_file.write_text(json.dumps(spec))
+        _run(['moment-arms', '--model', str(model), '--spec', str(spec_file), '--out', str(out)])
+        return json.loads(out.read_text())

@@ -20,7 +20,7 @@ outside the motion's time span are dropped and counted.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import hashlib
 import json
 import os
@@ -307,9 +307,11 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
                model: Path | None = None, mass_kg: float | None = None,
                height_m: float | None = None, name: str | None = None,
                marker_map: Path | None = None, forward: str | None = None,
-               up: str | None = None, max_gap_s: float | None = None) -> LabRecording:
+               up: str | None = None, max_gap_s: float | None = None,
+               subject_paths: bool = True) -> LabRecording:
     """``nmt import-lab``: one route (IK, TRC or C3D) to a :class:`LabRecording` with its
-    subject and the momentum balance checked (:func:`check_momentum`)."""
+    subject and the momentum balance checked (:func:`check_momentum`); with a model and
+    ``subject_paths``, the muscle paths of its own geometry (:func:`with_subject_paths`)."""
     from nmt_ros.io.marker_map import load_marker_map
     from nmt_ros.study.marker_calibration import calibrate
     routes = {'ik': ik, 'trc': trc, 'c3d': c3d}
@@ -339,7 +341,28 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
         else:
             rec = import_c3d(c3d, mmap, subject, grf, external_loads, frame, **kw)
     check_momentum(rec)
+    if model is not None and subject_paths:
+        rec = with_subject_paths(rec, model)
     return rec
+
+
+def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecording:
+    """The recording with its subject's muscle paths taken from the subject's own model
+    (``subject_scaling.yaml`` ``muscle_groups``; ``nmt_ros.model.subject``,
+    ``paths_from_moment_arms``); groups the model lacks keep the scaled jumper's path and are
+    reported in ``facts['subject_paths']``."""
+    from nmt_ros.model.subject import moment_arm_spec, paths_from_moment_arms
+    from nmt_ros.osim.subject_process import subject_moment_arms
+    arms = subject_moment_arms(model, moment_arm_spec())
+    scale = replace(rec.scale, paths={})
+    paths = paths_from_moment_arms(scale_parameters(load_parameters(), scale), arms)
+    facts = {'from_model': sorted(paths),
+             'moment_arm_fit_rms_mm': {n: round(1e3 * p['moment_arm_rms_m'], 3)
+                                       for n, p in paths.items()},
+             'kept_jumper': {n: f'{", ".join(m)} not in the model'
+                             for n, m in arms['missing'].items()}}
+    rec.facts['subject_paths'] = facts
+    return replace(rec, scale=replace(scale, paths=paths))
 
 
 def check_momentum(rec: LabRecording) -> dict:
