@@ -225,3 +225,34 @@ def test_subject_paths_are_the_subject_models_own_moment_arms() -> None:
     gmax = MUSCLES.index('gmax')
     assert float(np.asarray(subject.moment_arms(deep))[gmax, 2]) < -0.02
     assert abs(float(np.asarray(default_model().moment_arms(deep))[gmax, 2])) < 0.005
+
+
+def test_moment_arm_sampler_on_the_jumpers_source_model_gives_the_jumpers_paths() -> None:
+    """``python -m nmt_ros.osim.subject moment-arms`` on gait10dof18musc.osim (knee flexing
+    negative, muscles named as the jumper's: the last alternative of every group) samples
+    the moment arms the jumper's fitted paths have (their fit: 0.1 mm RMS)."""
+    from nmt_ros.model.subject import moment_arm_spec
+    from nmt_ros.osim.subject_process import subject_moment_arms
+
+    spec = moment_arm_spec()
+    spec['step_deg'] = 10.0
+    spec['ranges_deg'] = {'hip_flexion': [-20.0, 120.0], 'knee_angle': [-120.0, 0.0],
+                          'ankle_angle': [-50.0, 40.0]}      # inside the paths' fit grid
+    res = subject_moment_arms(SOURCE, spec)
+    assert not res['missing'] and res['coordinate_sign']['knee_angle'] == 1.0
+    assert res['muscles']['gmax']['members'] == ['glut_max_r']
+    jumper = default_model()
+    report = json.loads((REPO / 'nmt_ros' / 'model' / 'data' / 'paths_fit_report.json')
+                        .read_text())['muscles']
+    joint = {'ankle_angle': 0, 'knee_angle': 1, 'hip_flexion': 2}
+    assert set(res['muscles']) == set(MUSCLES)
+    for name, a in res['muscles'].items():
+        k = MUSCLES.index(name)
+        cols = [joint[c] for c in a['coordinates']]
+        th = np.zeros((len(a['points_rad']), 3))
+        th[:, cols] = np.asarray(a['points_rad'])
+        ours = np.array([np.asarray(jumper.moment_arms(t))[k, cols] for t in th])
+        worst = np.abs(ours - np.asarray(a['moment_arms_m'])).max()
+        # within the fit's own worst moment-arm error (its report: 0.01-2.8 mm; the
+        # iliopsoas' conditional path point makes a kink at 45 deg the polynomial smooths)
+        assert worst < 1.5e-3 * report[name]['moment_arm_max_mm'] + 3e-4, (name, worst)

@@ -271,16 +271,17 @@ def scaled_jumper(source: str | Path, length: dict[str, float], mass_kg: float,
     return out
 
 
-def group_moment_arms(source: str | Path, groups: dict[str, list[str]],
+def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
                       coordinates: dict[str, list[str]], ranges_deg: dict[str, list[float]],
                       step_deg: float) -> dict:
     """Moment arms of the subject's own muscles lumped as the jumper lumps them: for each
-    jumper muscle whose group (``groups``: right-leg muscle names without ``_r``) the model
-    has in full, on a grid over its ``coordinates`` (jumper coordinate names, ``ranges_deg``
-    in the jumper's convention, every other joint at 0), the F0-weighted mean moment arm
-    [m] about each of them. Coordinate signs are the jumper's (gait10dof18musc): a model
-    whose knee_angle_r flexes positive (Rajagopal: range 0..140 deg) is posed at -knee and
-    its knee moment arms negated. Muscles whose group is incomplete are listed as missing."""
+    jumper muscle, the first alternative of its group (``groups``: lists of right-leg muscle
+    names without ``_r``) the model has in full; on a grid over its ``coordinates`` (jumper
+    coordinate names, ``ranges_deg`` in the jumper's convention, every other joint at 0), the
+    F0-weighted mean moment arm [m] about each of them. Coordinate signs are the jumper's
+    (gait10dof18musc): a model whose knee_angle_r flexes positive (Rajagopal: range 0..140
+    deg) is posed at -knee and its knee moment arms negated. Muscles none of whose
+    alternatives the model has in full are listed as missing."""
     model, state = load(source)
     cs = model.getCoordinateSet()
     muscles = model.getMuscles()
@@ -293,12 +294,14 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[str]],
                             and coord.getRangeMax() > abs(coord.getRangeMin()))
         sign[c] = -1.0 if flexion_positive else 1.0
     out: dict = {'model': str(source), 'coordinate_sign': sign, 'muscles': {}, 'missing': {}}
-    for lumped, members in groups.items():
-        names = [m + '_r' for m in members]
-        absent = [n for n in names if not muscles.contains(n)]
-        if absent:
-            out['missing'][lumped] = absent
+    for lumped, alternatives in groups.items():
+        complete = [[m + '_r' for m in members] for members in alternatives
+                    if all(muscles.contains(m + '_r') for m in members)]
+        if not complete:
+            out['missing'][lumped] = [' + '.join(m + '_r' for m in members)
+                                      for members in alternatives]
             continue
+        names = complete[0]
         f0 = np.array([muscles.get(n).getMaxIsometricForce() for n in names])
         coords = list(coordinates[lumped])
         axes = [np.radians(np.arange(ranges_deg[c][0], ranges_deg[c][1] + 1e-9, step_deg))

@@ -359,7 +359,7 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
     facts = {'from_model': sorted(paths),
              'moment_arm_fit_rms_mm': {n: round(1e3 * p['moment_arm_rms_m'], 3)
                                        for n, p in paths.items()},
-             'kept_jumper': {n: f'{", ".join(m)} not in the model'
+             'kept_jumper': {n: f'none of {" | ".join(m)} in the model'
                              for n, m in arms['missing'].items()}}
     rec.facts['subject_paths'] = facts
     return replace(rec, scale=replace(scale, paths=paths))
