@@ -299,3 +299,37 @@ def test_cli_on_the_shipped_recording_matches_the_shipped_bag(tmp_path: Path) ->
                            '--trc', str(REAL / 'MarkerData' / 'DJ1.trc'), '--out',
                            str(tmp_path / 'x')], capture_output=True, text=True, cwd=REPO)
     assert proc.returncode == 2 and '--trc needs --grf' in proc.stderr
+
+
+def test_mass_implied_weighs_the_subject_with_its_own_force_plates(tmp_path: Path) -> None:
+    """`--mass implied`: the subject takes the body mass the recording's momentum balance
+    implies (the shipped drop jump: the impulse between its two flights, 94.5 kg by the IK
+    route; the markers' COM with the jumper's proportions here), and says so; a --mass that
+    is neither a number nor 'implied' is a clear error."""
+    import json
+
+    import yaml
+
+    def run(*extra: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, '-m', 'nmt_ros.cli.main', 'import-lab',
+                               '--trc', str(REAL / 'MarkerData' / 'DJ1.trc'),
+                               '--grf', str(REAL / 'ID' / 'DJ1_grf.mot'),
+                               '--external-loads', str(REAL / 'ID' / 'DJ1_external_forces.xml'),
+                               '--height', '1.8', *extra], capture_output=True, text=True,
+                              timeout=300, cwd=REPO)
+    out = tmp_path / 'bag'
+    proc = run('--mass', 'implied', '--out', str(out))
+    assert proc.returncode == 0, proc.stderr
+    subject = yaml.safe_load((out / 'subject.yaml').read_text())['subject']
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())
+    facts = json.loads(meta['rosbag2_bagfile_information']['custom_data']['nmt.import'])
+    implied = facts['momentum_balance']['implied_mass_kg']
+    assert subject['mass_kg'] == pytest.approx(implied, abs=0.01)
+    assert implied == pytest.approx(94.5, rel=0.02)
+    assert 'force plates imply' in subject['source']
+    assert not any('imply a body mass' in w for w in facts['warnings'])
+    # with the jumper's 75.16 kg the same recording is flagged
+    proc = run('--mass', '75.16', '--out', str(tmp_path / 'b2'))
+    assert proc.returncode == 0 and 'imply a body mass of' in proc.stderr
+    proc = run('--mass', 'heavy', '--out', str(tmp_path / 'b3'))
+    assert proc.returncode == 2 and "'heavy': a mass in kg or 'implied'" in proc.stderr

@@ -22,6 +22,15 @@ import shutil
 import sys
 
 
+def _mass(text: str) -> float | str:
+    if text == 'implied':
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: a mass in kg or 'implied'") from None
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_argument_group('motion (one of)')
     src.add_argument('--ik', type=Path, help='OpenSim inverse-kinematics .mot (needs --model)')
@@ -32,9 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--external-loads', type=Path,
                         help='OpenSim ExternalLoads .xml naming the plates of --grf')
     parser.add_argument('--model', type=Path, help="the subject's scaled OpenSim model")
-    parser.add_argument('--mass', type=float,
-                        help='body mass [kg]; with --model the model\'s segment masses are '
-                        'scaled to it (its mass distribution kept)')
+    parser.add_argument('--mass', type=_mass,
+                        help='body mass [kg], or "implied": the mass the force plates imply '
+                        '(a quiet stance on them, or the impulse of a contact between two '
+                        'flights); with --model the model\'s segment masses are scaled to it '
+                        '(its mass distribution kept)')
     parser.add_argument('--height', type=float, help='stature [m] (without --model)')
     parser.add_argument('--name', default=None, help='subject name (default: file stem)')
     parser.add_argument('--marker-map', type=Path, default=None,

@@ -304,14 +304,15 @@ def lab_subject(name: str, model: str | os.PathLike | None = None,
 
 def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | None = None,
                grf: Path | None = None, external_loads: Path | None = None,
-               model: Path | None = None, mass_kg: float | None = None,
+               model: Path | None = None, mass_kg: float | str | None = None,
                height_m: float | None = None, name: str | None = None,
                marker_map: Path | None = None, forward: str | None = None,
                up: str | None = None, max_gap_s: float | None = None,
                subject_paths: bool = True) -> LabRecording:
     """``nmt import-lab``: one route (IK, TRC or C3D) to a :class:`LabRecording` with its
     subject and the momentum balance checked (:func:`check_momentum`); with a model and
-    ``subject_paths``, the muscle paths of its own geometry (:func:`with_subject_paths`)."""
+    ``subject_paths``, the muscle paths of its own geometry (:func:`with_subject_paths`).
+    ``mass_kg`` 'implied': the body mass the force plates imply (:func:`with_implied_mass`)."""
     from nmt_ros.io.marker_map import load_marker_map
     from nmt_ros.study.marker_calibration import calibrate
     routes = {'ik': ik, 'trc': trc, 'c3d': c3d}
@@ -324,7 +325,14 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
     if route == 'ik' and model is None:
         raise ValueError('--ik needs --model (the .osim the IK was solved with)')
     source = Path(routes[route])
-    subject, measures = lab_subject(name or source.stem, model, mass_kg, height_m)
+    implied = mass_kg == 'implied'
+    if isinstance(mass_kg, str) and not implied:
+        raise ValueError(f"--mass {mass_kg!r}: a mass in kg or 'implied'")
+    if implied and model is None:
+        mass_kg = load_parameters().total_mass    # the jumper's proportions, re-weighed below
+    subject, measures = lab_subject(name or source.stem, model,
+                                    None if implied and model is not None else mass_kg,
+                                    height_m)
     kw = {} if max_gap_s is None else {'max_gap_s': max_gap_s}
     if route == 'ik':
         frame = SagittalFrame(forward or '+x', up or '+y')
@@ -341,9 +349,30 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
         else:
             rec = import_c3d(c3d, mmap, subject, grf, external_loads, frame, **kw)
     check_momentum(rec)
+    if implied:
+        rec = with_implied_mass(rec)
     if model is not None and subject_paths:
         rec = with_subject_paths(rec, model)
     return rec
+
+
+def with_implied_mass(rec: LabRecording) -> LabRecording:
+    """The recording with its subject weighed by its own force plates: every segment mass
+    scaled to the body mass the momentum balance implies (``check_momentum``; the segment
+    angles, the wrench about the foot COM and the COM's course do not depend on the total
+    mass), the balance checked again. A recording that implies no mass is an error."""
+    from nmt_ros.model.subject import subject_with_mass
+    mass = rec.facts.get('momentum_balance', {}).get('implied_mass_kg')
+    if mass is None:
+        raise ValueError('--mass implied: the recording implies no body mass (neither a quiet '
+                         'stance on the plates nor a contact between two flights); give '
+                         '--mass KG')
+    subject = subject_with_mass(rec.subject, float(mass))
+    subject = replace(subject, source=f'{subject.source} (the mass the force plates imply)')
+    out = replace(rec, subject=subject, scale=scale_factors(subject),
+                  facts={**rec.facts, 'warnings': [], 'mass_from': 'implied by the recording'})
+    check_momentum(out)
+    return out
 
 
 def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecording:
