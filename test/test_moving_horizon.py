@@ -406,7 +406,8 @@ def test_a_step_that_breaks_the_estimate_is_taken_back_not_a_loss_of_control(
     estimates the emission check refuses, is taken back and replaced by checked iterations
     from where it began (reported as a warning): no re-initialisation, no instant withheld,
     the torques as accurate as without it. With ``undo_broken_steps`` off the same step is a
-    loss of control."""
+    loss of control, after which the window re-initialised on the newest data estimates the
+    instants the broken window could not publish: none is withheld."""
     from nmt_ros.tracking.moving_horizon.window import SlidingWindow
     held, obs, _ = stance
     monkeypatch.setattr(SlidingWindow, 'step',
@@ -418,6 +419,9 @@ def test_a_step_that_breaks_the_estimate_is_taken_back_not_a_loss_of_control(
     if not undo:
         assert len(errors) == 1 and why in errors[0].message, errors
         assert run.restarts == 1 and not taken_back
+        assert np.array_equal(run.refined.t, obs.t_wrench)
+        assert np.array_equal(run.low_latency.t, obs.t_wrench)
+        assert not [e for e in run.events if 'without a refined estimate' in e.message]
         return
     assert not errors and run.restarts == 0, errors
     assert len(taken_back) == 1 and why in taken_back[0].message, taken_back

@@ -511,10 +511,13 @@ class MovingHorizonEstimator:
 
     # ------------------------------------------------------------------ outputs
     def _emit(self, t_u: float, final: bool = False,
-              undo: Callable[[str], str | None] | None = None) -> list[EstimateBlock]:
+              undo: Callable[[str], str | None] | None = None,
+              retry: bool = True) -> list[EstimateBlock]:
         """The estimates that became available at update time t_u [s] (``final``: all the
         window holds). Estimates that cannot be published drop the window, unless ``undo``
-        (taking back the update's step, ``_undo_step``) makes them publishable."""
+        (taking back the update's step, ``_undo_step``) makes them publishable; the window
+        re-initialised on the newest data then estimates those instants again (``retry``),
+        and what it cannot publish either is withheld."""
         st = self.settings
         lo = self.window.t_start
         ready = {}
@@ -548,10 +551,22 @@ class MovingHorizonEstimator:
             if why is None:
                 both, why = judged()
         if why is not None:
+            if retry and not final:
+                # the window restarts on the newest data and estimates the same instants
+                # again (those before its start are reported as lost by the retry)
+                self._drop_window(t_u, f'loss of control: {why}; re-initialising from the '
+                                  'newest observations', {'from_s': float(both.t.min()),
+                                                          'to_s': float(both.t.max())})
+                for k in kinds:
+                    queue = 'out_low' if k == 'low_latency' else 'out_refined'
+                    setattr(self, queue, [float(t) for t in ready[k]] + getattr(self, queue))
+                if self._start(t_u):
+                    return self._emit(t_u, retry=False)
+                return []
             # never published: the instants are reported as lost and the window restarts
             self._drop_window(t_u, f'loss of control: {why}; {both.t.size} instants withheld, '
                               're-initialising from the newest observations',
-                              {'from_s': float(both.t[0]), 'to_s': float(both.t[-1])})
+                              {'from_s': float(both.t.min()), 'to_s': float(both.t.max())})
             if not final:
                 self._start(t_u)
             return []
