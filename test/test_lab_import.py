@@ -333,3 +333,25 @@ def test_mass_implied_weighs_the_subject_with_its_own_force_plates(tmp_path: Pat
     assert proc.returncode == 0 and 'imply a body mass of' in proc.stderr
     proc = run('--mass', 'heavy', '--out', str(tmp_path / 'b3'))
     assert proc.returncode == 2 and "'heavy': a mass in kg or 'implied'" in proc.stderr
+
+
+def test_a_model_the_jumpers_joints_cannot_pose_keeps_the_jumpers_paths(tmp_path: Path) -> None:
+    """A subject .osim without the jumper's joint coordinates (here the shipped model with
+    hip_flexion_r renamed) still imports: its muscle geometry cannot be sampled, so the
+    subject keeps the scaled jumper's paths, and the import says why."""
+    import yaml
+
+    model = tmp_path / 'renamed.osim'
+    model.write_text((REAL / 'Models' / 'final.osim').read_text().replace('hip_flexion_r',
+                                                                          'hip_flex_r'))
+    out = tmp_path / 'bag'
+    proc = subprocess.run([sys.executable, '-m', 'nmt_ros.cli.main', 'import-lab',
+                           '--trc', str(REAL / 'MarkerData' / 'DJ1.trc'),
+                           '--grf', str(REAL / 'ID' / 'DJ1_grf.mot'),
+                           '--external-loads', str(REAL / 'ID' / 'DJ1_external_forces.xml'),
+                           '--model', str(model), '--out', str(out)],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    assert "muscle paths: the scaled jumper's" in proc.stderr
+    assert 'no coordinate hip_flexion_r' in proc.stderr
+    assert 'paths' not in yaml.safe_load((out / 'subject.yaml').read_text())['scale']

@@ -369,8 +369,11 @@ def with_implied_mass(rec: LabRecording) -> LabRecording:
                          '--mass KG')
     subject = subject_with_mass(rec.subject, float(mass))
     subject = replace(subject, source=f'{subject.source} (the mass the force plates imply)')
+    said = ('no body mass could be estimated', 'the force plates imply a body mass',
+            'supported by something that is not on a force plate')   # by check_momentum
+    kept = [w for w in rec.facts.get('warnings', []) if not any(x in w for x in said)]
     out = replace(rec, subject=subject, scale=scale_factors(subject),
-                  facts={**rec.facts, 'warnings': [], 'mass_from': 'implied by the recording'})
+                  facts={**rec.facts, 'warnings': kept, 'mass_from': 'implied by the recording'})
     check_momentum(out)
     return out
 
@@ -382,7 +385,13 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
     reported in ``facts['subject_paths']``."""
     from nmt_ros.model.subject import moment_arm_spec, paths_from_moment_arms
     from nmt_ros.osim.subject_process import subject_moment_arms
-    arms = subject_moment_arms(model, moment_arm_spec())
+    try:
+        arms = subject_moment_arms(model, moment_arm_spec())
+    except ValueError as exc:          # a model OpenSim cannot pose as the jumper's joints
+        rec.facts['subject_paths'] = {'from_model': [], 'error': str(exc)}
+        rec.facts.setdefault('warnings', []).append(
+            f"muscle paths: the scaled jumper's ({model} gave no moment arms: {exc})")
+        return rec
     scale = replace(rec.scale, paths={})
     paths = paths_from_moment_arms(scale_parameters(load_parameters(), scale), arms)
     facts = {'from_model': sorted(paths),
