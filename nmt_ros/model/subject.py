@@ -17,10 +17,11 @@ A :class:`Subject` holds what is measured of a person (from a scaled OpenSim mod
   ``l_slack`` scale alike (normalised fibre lengths unchanged at every pose);
 * strength: ``F0' = F0 (M / M_jumper) ** (2/3)``; passive joint torques by that factor times the
   leg's length factor;
-* with the subject's own .osim (Rajagopal family), the paths of ``subject_paths`` take its
-  muscles' moment arms (:func:`paths_from_moment_arms`): the lumped path keeps the scaled
-  jumper's length at the zero pose and its gradient is fitted to the F0-weighted mean moment
-  arms of the muscles it lumps (``SubjectScale.paths``, stored in ``subject.yaml``).
+* with the subject's own .osim (Rajagopal, gait2392 or gait10dof18musc muscle names), the
+  paths of ``subject_paths`` take its muscles' moment arms (:func:`paths_from_moment_arms`):
+  the lumped path keeps the scaled jumper's length at the zero pose and its gradient is
+  fitted to the F0-weighted mean moment arms of the muscles it lumps (``SubjectScale.paths``,
+  stored in ``subject.yaml``).
 
 A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
 :func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
