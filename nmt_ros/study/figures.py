@@ -175,7 +175,8 @@ def plot_fig5(truth: Truth, obs: Observations, run: object, model: object,
 
 def plot_lab_fit(obs: Observations, estimates: object, path: str | Path, body_weight: float,
                  f0: np.ndarray, id_table: object | None = None,
-                 title: str = 'Lab recording: estimate vs measurement') -> Path:
+                 title: str = 'Lab recording: estimate vs measurement',
+                 id_label: str = 'OpenSim ID') -> Path:
     """A tracked lab recording over the tracked span (``estimates``: ``TrialEstimates`` on
     the recording's time): measured vs estimated ground forces [BW] and segment angles [deg],
     the estimated joint torques [N m] (with OpenSim's inverse dynamics, ``id_table``, when
@@ -205,7 +206,7 @@ def plot_lab_fit(obs: Observations, estimates: object, path: str | Path, body_we
             col = ('ankle_angle_moment', 'knee_angle_moment', 'hip_flexion_moment')[j]
             keep = (id_table.time >= t0 - 1e-9) & (id_table.time <= t1 + 1e-9)
             ax.plot(id_table.time[keep], id_table.column(col)[keep], color=f'C{j}', lw=0.8,
-                    ls='--', label=f'{label} (OpenSim ID)')
+                    ls='--', label=f'{label} ({id_label})')
     ax.set_ylabel('joint torque (N m)')
     ax.legend(fontsize=8, ncol=2)
     ax = axes[1, 1]

@@ -92,8 +92,9 @@ def id_agreement(obs: Observations, t_est: np.ndarray, tau_est: np.ndarray,
             'peak_nm': dict(zip(JOINTS, np.abs(ref).max(axis=0).tolist()))}
 
 
-def format_fit(fit: dict, agreement: dict | None = None) -> str:
-    """One or two lines for a report."""
+def format_fit(fit: dict, agreement: dict | None = None, filtered: dict | None = None) -> str:
+    """One to three lines for a report (``agreement``: against the unfiltered inverse
+    dynamics, ``filtered``: against the one low-passed at 15 Hz)."""
     a = fit['angle_rms_deg']
     text = (f'fit to the observations ({fit["span_s"][0]:.3f}..{fit["span_s"][1]:.3f} s): '
             f'segment angles {" / ".join(f"{a[s]:.1f}" for s in SEGMENTS)} deg RMS '
@@ -103,10 +104,12 @@ def format_fit(fit: dict, agreement: dict | None = None) -> str:
         text += (f'; over contact ({fit["contact_samples"]} force samples above '
                  f'{fit["contact_n"]:g} N): Fy {f["fy"]:.1f} / Fx {f["fx"]:.1f} % BW RMS, '
                  f'moment {fit["moment_rms_nm"]:.0f} N m RMS')
-    if agreement and 'correlation' in agreement:
-        c, r = agreement['correlation'], agreement['rms_pct_peak']
-        text += ('\njoint torques vs OpenSim inverse dynamics over contact: correlation '
-                 f'{" / ".join(f"{c[j]:.2f}" for j in JOINTS)}, RMS '
-                 f'{" / ".join(f"{r[j]:.0f}" for j in JOINTS)} % of its peak '
-                 '(ankle, knee, hip)')
+    for what, a in (('', agreement), (' (coordinates and plates low-passed at 15 Hz)',
+                                      filtered)):
+        if a and 'correlation' in a:
+            c, r = a['correlation'], a['rms_pct_peak']
+            text += (f'\njoint torques vs OpenSim inverse dynamics{what} over contact: '
+                     f'correlation {" / ".join(f"{c[j]:.2f}" for j in JOINTS)}, RMS '
+                     f'{" / ".join(f"{r[j]:.0f}" for j in JOINTS)} % of its peak '
+                     '(ankle, knee, hip)')
     return text
