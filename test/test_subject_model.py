@@ -256,3 +256,42 @@ def test_moment_arm_sampler_on_the_jumpers_source_model_gives_the_jumpers_paths(
         # within the fit's own worst moment-arm error (its report: 0.01-2.8 mm; the
         # iliopsoas' conditional path point makes a kink at 45 deg the polynomial smooths)
         assert worst < 1.5e-3 * report[name]['moment_arm_max_mm'] + 3e-4, (name, worst)
+
+
+def test_subject_strengths_are_the_subject_models_own() -> None:
+    """The shipped drop jump's subject takes F0 and l_opt from its .osim's own muscles
+    (read here from the XML, not through OpenSim): F0 the group's sum for two legs, l_opt its
+    F0-weighted mean; each such muscle's tendon slack length moves so that its normalised
+    fibre length at the zero pose is the scaled jumper's (its path's operating point)."""
+    from dataclasses import replace
+    import re
+
+    text = REAL_MODEL.read_text()
+    osim = {}
+    for m in re.finditer(r'<(\w+Muscle) name="(\w+)_r">(.*?)</\1>', text, re.S):
+        f0 = float(re.search(r'<max_isometric_force>([^<]+)<', m.group(3)).group(1))
+        lo = float(re.search(r'<optimal_fiber_length>([^<]+)<', m.group(3)).group(1))
+        osim[m.group(2)] = (f0, lo)
+    groups = {'gmax': ('glmax1', 'glmax2', 'glmax3'), 'vas': ('vasint', 'vaslat', 'vasmed'),
+              'hams': ('semimem', 'semiten', 'bflh'), 'sol': ('soleus',)}
+    _, scale = read_subject(REPO / 'bags' / 'real_dropjump')
+    subject = load_subject_model(REPO / 'bags' / 'real_dropjump').p.muscles
+    jumper_scaled = scale_parameters(load_parameters(),
+                                     replace(scale, f0_n={}, l_opt_m={})).muscles
+    for name, members in groups.items():
+        f0 = np.array([osim[n][0] for n in members])
+        lo = np.array([osim[n][1] for n in members])
+        k = MUSCLES.index(name)
+        assert subject.f0[k] == pytest.approx(2 * f0.sum(), rel=1e-9)
+        assert subject.l_opt[k] == pytest.approx(np.dot(f0, lo) / f0.sum(), rel=1e-9)
+    model = load_subject_model(REPO / 'bags' / 'real_dropjump')
+    jumper = JumperModel(scale_parameters(load_parameters(), replace(scale, f0_n={},
+                                                                       l_opt_m={})))
+    zero = np.zeros(3)
+    # the paths keep the scaled jumper's length at the zero pose
+    assert np.allclose(np.asarray(model.musculotendon_lengths(zero)).ravel(),
+                       np.asarray(jumper.musculotendon_lengths(zero)).ravel())
+    along = lambda p, l_mt: (l_mt - p.l_slack) / p.l_opt            # noqa: E731
+    l_mt = np.asarray(model.musculotendon_lengths(zero)).ravel()
+    assert np.allclose(along(subject, l_mt), along(jumper_scaled, l_mt), rtol=1e-9)
+    assert not np.allclose(subject.l_opt, jumper_scaled.l_opt)

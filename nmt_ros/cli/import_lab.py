@@ -58,8 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--max-gap', type=float, default=None,
                         help='longest marker gap filled by interpolation [s] (default 0.1)')
     parser.add_argument('--jumper-paths', action='store_true',
-                        help="keep the scaled jumper's muscle paths (default with --model: "
-                        "moment arms from the model's own muscles, see 'Lab recordings')")
+                        help="keep the scaled jumper's muscles (paths, and strengths by the "
+                        "mass rule; default with --model: moment arms, F0 and optimal fibre "
+                        "lengths from the model's own muscles, see 'Lab recordings')")
     parser.add_argument('--out', required=True, type=Path, help='bag folder to write')
     parser.add_argument('--force', action='store_true', help='replace an existing --out')
 

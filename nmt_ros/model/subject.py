@@ -16,12 +16,16 @@ A :class:`Subject` holds what is measured of a person (from a scaled OpenSim mod
   ``k_mus`` the mean length factor of the segments the muscle runs along; ``l_opt`` and
   ``l_slack`` scale alike (normalised fibre lengths unchanged at every pose);
 * strength: ``F0' = F0 (M / M_jumper) ** (2/3)``; passive joint torques by that factor times the
-  leg's length factor;
+  leg's length factor; with the subject's own .osim, its muscles' strengths instead (below);
 * with the subject's own .osim (Rajagopal, gait2392 or gait10dof18musc muscle names), the
   paths of ``subject_paths`` take its muscles' moment arms (:func:`paths_from_moment_arms`):
   the lumped path keeps the scaled jumper's length at the zero pose and its gradient is
   fitted to the F0-weighted mean moment arms of the muscles it lumps (``SubjectScale.paths``,
-  stored in ``subject.yaml``).
+  stored in ``subject.yaml``), and its F0 and l_opt are theirs (:func:`strengths_from_moment_arms`:
+  F0 the members' sum for two legs, l_opt their F0-weighted mean; l_slack moves so that the
+  normalised fibre length at the zero pose stays the scaled jumper's). Geometry and strength
+  from one model: moment arms from the subject's model with the jumper's fibres would set
+  the fibres' normalised speeds per rad/s by the ratio of two models' numbers.
 
 A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
 :func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
@@ -80,6 +84,14 @@ class SubjectScale:
     # paths from the subject's own model, replacing the scaled jumper's (subject units, m):
     # {muscle: {'coordinates', 'exponents', 'coefficients', 'source', 'moment_arm_rms_m'}}
     paths: dict[str, dict] = field(default_factory=dict)
+    # maximum isometric forces [N, two legs] from the subject's own model, replacing the
+    # mass rule's F0 for these muscles: {muscle: F0}, and where they come from
+    f0_n: dict[str, float] = field(default_factory=dict)
+    f0_source: str = ''
+    # optimal fibre lengths [m] from the same model (F0-weighted means of the members'); each
+    # such muscle's tendon slack length moves so that its normalised fibre length at the
+    # zero pose stays the scaled jumper's (the operating point its path was fitted around)
+    l_opt_m: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         out = {'mass': dict(self.mass), 'length': dict(self.length),
@@ -87,6 +99,11 @@ class SubjectScale:
                'passive': self.passive, 'total_mass': self.total_mass}
         if self.paths:
             out['paths'] = {n: dict(p) for n, p in self.paths.items()}
+        if self.f0_n:
+            out['max_isometric_force_n'] = {n: float(v) for n, v in self.f0_n.items()}
+            out['max_isometric_force_source'] = self.f0_source
+        if self.l_opt_m:
+            out['optimal_fiber_length_m'] = {n: float(v) for n, v in self.l_opt_m.items()}
         return out
 
 
@@ -185,8 +202,17 @@ def scale_parameters(params: JumperParameters, scale: SubjectScale) -> JumperPar
                              f'{paths[n].coordinates}')
         paths[n] = replace(paths[n], exponents=np.asarray(own['exponents'], dtype=int).reshape(
             -1, len(coords)), coefficients=np.asarray(own['coefficients'], dtype=float))
-    muscles = replace(m, f0=m.f0 * scale.strength, l_opt=m.l_opt * kmus,
-                      l_slack=m.l_slack * kmus, paths=paths)
+    f0 = m.f0 * scale.strength
+    for n, v in scale.f0_n.items():         # the subject model's own strengths
+        f0[m.names.index(n)] = float(v)
+    l_opt, l_slack = m.l_opt * kmus, m.l_slack * kmus
+    for n, v in scale.l_opt_m.items():      # the subject model's own fibre lengths
+        i = m.names.index(n)
+        path = paths[n]
+        l_zero = float(path.coefficients[np.all(path.exponents == 0, axis=1)].sum())
+        l_slack[i] = l_zero - (l_zero - l_slack[i]) * float(v) / l_opt[i]
+        l_opt[i] = float(v)
+    muscles = replace(m, f0=f0, l_opt=l_opt, l_slack=l_slack, paths=paths)
     return replace(params, segments=segs, contact=contact, passive=passive, muscles=muscles)
 
 
@@ -269,6 +295,21 @@ def paths_from_moment_arms(params: JumperParameters, arms: dict) -> dict[str, di
     return out
 
 
+def strengths_from_moment_arms(arms: dict, legs: int = 2,
+                               ) -> tuple[dict[str, float], dict[str, float]]:
+    """The lumped muscles' maximum isometric forces [N, ``legs`` legs: the members' sum per
+    leg] and optimal fibre lengths [m, the members' F0-weighted mean] from
+    ``subject_moment_arms``'s result (each group's members as the model has them)."""
+    f0, l_opt = {}, {}
+    for n, a in arms['muscles'].items():
+        if 'l_opt_m' not in a:
+            continue
+        w = np.asarray(a['f0_n'], dtype=float)
+        f0[n] = float(legs * w.sum())
+        l_opt[n] = float(np.dot(w, a['l_opt_m']) / w.sum())
+    return f0, l_opt
+
+
 def subject_parameters(subject: Subject, params: JumperParameters | None = None,
                        ) -> tuple[JumperParameters, SubjectScale]:
     p = params or load_parameters()
@@ -329,10 +370,15 @@ def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
                          muscle_length={n: float(k['muscle_length'][n]) for n in MUSCLES},
                          strength=float(k['strength']), passive=float(k['passive']),
                          total_mass=float(k['total_mass']),
-                         paths={n: dict(v) for n, v in (k.get('paths') or {}).items()})
-    unknown = [n for n in scale.paths if n not in MUSCLES]
+                         paths={n: dict(v) for n, v in (k.get('paths') or {}).items()},
+                         f0_n={n: float(v) for n, v in
+                               (k.get('max_isometric_force_n') or {}).items()},
+                         f0_source=str(k.get('max_isometric_force_source', '')),
+                         l_opt_m={n: float(v) for n, v in
+                                  (k.get('optimal_fiber_length_m') or {}).items()})
+    unknown = [n for n in [*scale.paths, *scale.f0_n, *scale.l_opt_m] if n not in MUSCLES]
     if unknown:
-        raise ValueError(f'{path}: paths for unknown muscles {unknown}')
+        raise ValueError(f'{path}: paths or strengths for unknown muscles {unknown}')
     return subject, scale
 
 

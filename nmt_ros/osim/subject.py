@@ -278,10 +278,11 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
     jumper muscle, the first alternative of its group (``groups``: lists of right-leg muscle
     names without ``_r``) the model has in full; on a grid over its ``coordinates`` (jumper
     coordinate names, ``ranges_deg`` in the jumper's convention, every other joint at 0), the
-    F0-weighted mean moment arm [m] about each of them. Coordinate signs are the jumper's
-    (gait10dof18musc): a model whose knee_angle_r flexes positive (Rajagopal: range 0..140
-    deg) is posed at -knee and its knee moment arms negated. Muscles none of whose
-    alternatives the model has in full are listed as missing."""
+    F0-weighted mean moment arm [m] about each of them, with the members' maximum
+    isometric forces ``f0_n`` [N] and optimal fibre lengths ``l_opt_m`` [m]. Coordinate
+    signs are the jumper's (gait10dof18musc): a model whose knee_angle_r flexes positive
+    (Rajagopal: range 0..140 deg) is posed at -knee and its knee moment arms negated.
+    Muscles none of whose alternatives the model has in full are listed as missing."""
     model, state = load(source)
     cs = model.getCoordinateSet()
     muscles = model.getMuscles()
@@ -303,6 +304,7 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
             continue
         names = complete[0]
         f0 = np.array([muscles.get(n).getMaxIsometricForce() for n in names])
+        l_opt = [muscles.get(n).getOptimalFiberLength() for n in names]
         coords = list(coordinates[lumped])
         axes = [np.radians(np.arange(ranges_deg[c][0], ranges_deg[c][1] + 1e-9, step_deg))
                 for c in coords]
@@ -317,7 +319,8 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
                 r = [muscles.get(n).getGeometryPath().computeMomentArm(state, cs.get(c + '_r'))
                      for n in names]
                 arms[i, k] = sign[c] * float(np.dot(f0, r) / f0.sum())
-        out['muscles'][lumped] = {'members': names, 'f0_n': f0.tolist(), 'coordinates': coords,
+        out['muscles'][lumped] = {'members': names, 'f0_n': f0.tolist(), 'l_opt_m': l_opt,
+                                  'coordinates': coords,
                                   'points_rad': points.tolist(), 'moment_arms_m': arms.tolist()}
     return out
 

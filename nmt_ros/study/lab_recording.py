@@ -383,7 +383,11 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
     (``subject_scaling.yaml`` ``muscle_groups``; ``nmt_ros.model.subject``,
     ``paths_from_moment_arms``); groups the model lacks keep the scaled jumper's path and are
     reported in ``facts['subject_paths']``."""
-    from nmt_ros.model.subject import moment_arm_spec, paths_from_moment_arms
+    from nmt_ros.model.subject import (
+        moment_arm_spec,
+        paths_from_moment_arms,
+        strengths_from_moment_arms,
+    )
     from nmt_ros.osim.subject_process import subject_moment_arms
     try:
         arms = subject_moment_arms(model, moment_arm_spec())
@@ -392,15 +396,21 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
         rec.facts.setdefault('warnings', []).append(
             f"muscle paths: the scaled jumper's ({model} gave no moment arms: {exc})")
         return rec
-    scale = replace(rec.scale, paths={})
+    scale = replace(rec.scale, paths={}, f0_n={}, f0_source='', l_opt_m={})
     paths = paths_from_moment_arms(scale_parameters(load_parameters(), scale), arms)
+    f0, l_opt = strengths_from_moment_arms(arms)
     facts = {'from_model': sorted(paths),
+             'max_isometric_force_n': {n: round(v, 1) for n, v in f0.items()},
+             'optimal_fiber_length_m': {n: round(v, 4) for n, v in l_opt.items()},
              'moment_arm_fit_rms_mm': {n: round(1e3 * p['moment_arm_rms_m'], 3)
                                        for n, p in paths.items()},
              'kept_jumper': {n: f'none of {" | ".join(m)} in the model'
                              for n, m in arms['missing'].items()}}
     rec.facts['subject_paths'] = facts
-    return replace(rec, scale=replace(scale, paths=paths))
+    source = (f'{Path(model).name}: the members\' max_isometric_force summed (two legs) and '
+              'optimal_fiber_length F0-weighted')
+    return replace(rec, scale=replace(scale, paths=paths, f0_n=f0, l_opt_m=l_opt,
+                                      f0_source=source if f0 else ''))
 
 
 def check_momentum(rec: LabRecording) -> dict:
