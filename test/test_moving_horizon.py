@@ -829,3 +829,69 @@ def test_a_forced_divergence_is_recovered_within_half_a_second(routine, model):
         return np.sqrt(((ref.tau[m] - tau) ** 2).mean(axis=0)) / peak * 100
     before, later = rms_pct(t_burst - 1.0, t_burst), rms_pct(t_burst + 0.7, t_burst + 1.7)
     assert (later < np.maximum(2 * before, 2.0)).all(), (before, later)
+
+
+def test_trunk_residuals_are_the_bottom_up_inverse_dynamics(model):
+    """``trunk_residual_function`` (the loads that close Eq. 1: joint torques, a force at
+    the HAT's COM and a moment on it, solved bottom-up) against
+    ``JumperModel.inverse_dynamics(residual_at='hat')`` (numpy's solve of the 6 x 6 basis)
+    at random states and ground wrenches: Eq. 1's residual with the muscles off is exactly
+    the inverse dynamics' joint torques and HAT residual."""
+    import casadi as ca
+
+    from nmt_ros.tracking.moving_horizon.point_functions import (
+        trunk_residual_function,
+        wrench_generalized_forces,
+    )
+    rng = np.random.default_rng(11)
+    n = 25
+    q = rng.normal(scale=[0.15, 0.15, 0.15, 0.15, 0.1, 0.1], size=(n, 6))   # passive range
+    qd, qdd = rng.normal(size=(n, 6)), 5.0 * rng.normal(size=(n, 6))
+    w = rng.normal(scale=[100.0, 800.0, 20.0], size=(n, 3))
+    tau, hat = model.inverse_dynamics(q, qd, qdd, w, residual_at='hat')
+    qs, ss = ca.SX.sym('q', 6), ca.SX.sym('s', 3)
+    gen = ca.Function('gen', [qs, ss], [wrench_generalized_forces(model, qs, ss)])
+    fn = trunk_residual_function(model)
+    for k in range(n):
+        e = (np.asarray(model.mass_matrix(q[k])) @ qdd[k]
+             - np.asarray(model.inertial_gravity(q[k], qd[k])).ravel()
+             - np.asarray(gen(q[k], w[k])).ravel()
+             - model.T @ np.asarray(model.passive_torques(q[k], qd[k])).ravel())
+        nu = np.asarray(fn(q[k], e)).ravel()
+        assert np.allclose(nu[:3], tau[k], rtol=1e-9, atol=1e-7), (nu, tau[k])
+        assert np.allclose(nu[3:], hat[k], rtol=1e-9, atol=1e-7), (nu, hat[k])
+
+
+def test_net_joint_torques_are_the_inverse_dynamics_of_the_estimated_motion(stance, model):
+    """joint_torques='net': the published torques are the muscles' plus the joint part of
+    Eq. 1's residual, i.e. the bottom-up inverse dynamics of the estimate's own motion and
+    ground wrench (``JumperModel.inverse_dynamics``), and differ from the muscles' torques
+    by that residual only (faded out toward the window's open end); on the quiet stance (an
+    exact equilibrium of the model) they stay within a few N m of the truth like the
+    muscles' own."""
+    held, obs, run = stance
+    st = MovingHorizonSettings(joint_torques='net')
+    net = estimate(model, obs.t_angles, obs.angles, obs.t_wrench, obs.wrench, st).refined
+    assert np.array_equal(net.t, run.refined.t)
+    assert np.array_equal(net.q, run.refined.q)          # the estimate itself is the same
+    tau_id, _ = model.inverse_dynamics(net.q, net.qd, net.qdd, net.s, residual_at='hat')
+    # lag_s or more behind the newest data: in full; the stream's last lag_s (emitted at its
+    # end, at the window's open end) fades to the muscles' torques at the last instant
+    inner = net.t <= net.t[-1] - st.lag_s
+    assert np.allclose(net.tau[inner], tau_id[inner], rtol=1e-7, atol=1e-6)
+    assert np.allclose(net.tau[-1], run.refined.tau[-1])
+    assert not np.allclose(net.tau, run.refined.tau)      # the residual is not nothing
+    after = net.t >= 0.2
+    err = np.abs(net.tau[after] - held.tau[0]).mean(0)
+    assert (err < np.array([4.0, 8.0, 8.0])).all(), err
+    with pytest.raises(ValueError, match='joint_torques'):
+        MovingHorizonSettings(joint_torques='ID').validate()
+
+
+def test_joint_torques_auto_is_net_for_a_lab_subject_only():
+    from nmt_ros.tracking.moving_horizon.settings import joint_torques_for
+    assert joint_torques_for('auto', lab_subject=True) == 'net'
+    assert joint_torques_for('auto', lab_subject=False) == 'muscle'
+    assert joint_torques_for('muscle', lab_subject=True) == 'muscle'
+    with pytest.raises(ValueError, match='auto'):
+        joint_torques_for('reserve', lab_subject=False)

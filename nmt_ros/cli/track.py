@@ -41,6 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'smoothness, the cut-off of its smoothing-spline prior (default 40 Hz, '
                         "at most 0.8 x the force plate's Nyquist frequency; lower it for "
                         'noisy lab plates); the live node\'s wrench_cutoff_hz')
+    parser.add_argument('--joint-torques', choices=('auto', 'muscle', 'net'), default='auto',
+                        help="moving-horizon estimator: the joint torques reported, the "
+                        "muscles' or the net torques of the estimated motion (default auto: "
+                        "net for a lab recording's subject, the muscles' for the shipped "
+                        "jumper); the live node's joint_torques")
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -62,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         metrics = track_bag(args.bag, args.out, args.stage2_mode, args.window,
                             figures=not args.no_figures, say=_say, stage1=args.stage1,
                             stage2_k_r=args.stage2_kr, start_s=args.start,
-                            wrench_cutoff_hz=args.wrench_cutoff)
+                            wrench_cutoff_hz=args.wrench_cutoff,
+                            joint_torques=args.joint_torques)
     except ValueError as err:
         print(f'nmt track: error: {err}', file=sys.stderr)
         return 2

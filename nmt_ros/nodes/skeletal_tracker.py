@@ -66,7 +66,7 @@ from nmt_ros.topics import (
 )
 from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.moving_horizon.estimator import EstimateBlock, MovingHorizonEstimator
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings, joint_torques_for
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.streaming import Decimator, Stage1Output, Stage1Stream
 
@@ -148,6 +148,16 @@ class SkeletalTrackerNode(TrackerNode):
                           'force plates get proportionally more (11 at 100 Hz)', low=1, high=64)
         self.subject_file = p('subject_file', '', "the subject's model (a subject.yaml written "
                               "by nmt import-lab; '' = the shipped jumper)")
+        self.joint_torques = p('joint_torques', 'auto', "mhe: the joint torques published: "
+                               "'muscle' (the muscles'), 'net' (the net torques of the "
+                               "estimated motion and ground wrench) or 'auto' (net with a "
+                               "subject_file, a lab recording's subject; the muscles' for the "
+                               'shipped jumper)')
+        try:
+            self.joint_torques = joint_torques_for(self.joint_torques, bool(self.subject_file))
+        except ValueError as err:
+            self.fail_to_start(str(err))
+            self.joint_torques = 'muscle'
         self.start_s = p('start_s', 0.0, 'mhe: estimate from this trial time on [s]; earlier '
                          'samples are counted and not used (a support the force plates do '
                          'not measure, e.g. the box of a drop jump: nmt launch passes the '
@@ -185,6 +195,7 @@ class SkeletalTrackerNode(TrackerNode):
                                     wrench_cutoff_hz=self.wrench_cutoff_hz,
                                     excitation_weight=self.excitation_weight,
                                     airborne_start_wait_s=self.airborne_start_wait_s,
+                                    joint_torques=self.joint_torques,
                                     angle_rate_hz=self.angle_rate_hz,
                                     wrench_rate_hz=self.wrench_rate_hz)
         self.status.settings = {
@@ -200,7 +211,7 @@ class SkeletalTrackerNode(TrackerNode):
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
             'bias_rate': self.bias_rate, 'subject_file': self.subject_file,
-            'start_s': self.start_s}
+            'start_s': self.start_s, 'joint_torques': self.joint_torques}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)

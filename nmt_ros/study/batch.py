@@ -35,7 +35,7 @@ from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings, joint_torques_for
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.stage2 import load_stage2_settings
@@ -61,12 +61,14 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
               figures: bool = True, say: Callable[[str], None] = _quiet,
               stage1: str = 'auto', stage2_k_r: float | None = None,
               start_s: float | None = None,
-              wrench_cutoff_hz: float | None = None) -> dict | None:
+              wrench_cutoff_hz: float | None = None,
+              joint_torques: str = 'auto') -> dict | None:
     """Run the NMT on ``bag``, write the outputs under ``out``; returns the metrics (None
     when the bag has no truth). ``window``: Stage 2 window length H [s] (windowed mode);
     ``stage2_k_r``: Stage 2 effort weight kR (None: stage2.yaml's); ``start_s``: start
     tracking there (recording time, s; None: ``plan_start``'s choice); ``wrench_cutoff_hz``:
     the moving-horizon estimator's ground-wrench smoothness [Hz] (None: its default);
+    ``joint_torques``: 'muscle', 'net' or 'auto' (``settings.joint_torques_for``);
     ``say``: progress."""
     bag = Path(bag)
     model = load_subject_model(bag)
@@ -110,14 +112,18 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         say(f'Stage 1 in flight: foot angle weight {FLIGHT_FOOT_WEIGHT:g} while unloaded '
             f'(Table 1: {skt.weights[0]:g} on the ground)')
     # the moving-horizon estimator at the bag's rates, as the live node gets them
-    mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w)
+    mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w,
+                                joint_torques=joint_torques_for(joint_torques,
+                                                                subject is not None))
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work
     cutoff, lowered = mhe.wrench_cutoff()
     if stage1 in ('mhe', 'auto', 'optimal_muscle'):   # (they fall back on it)
         say(f'moving-horizon estimator: ground wrench smoothed at {cutoff:g} Hz'
-            + (f' ({lowered})' if lowered else ''))
+            + (f' ({lowered})' if lowered else '') + f'; joint torques: {mhe.joint_torques}'
+            + (' (the net torques of the estimated motion: a lab subject)'
+               if mhe.joint_torques == 'net' else ' (the muscles\')'))
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
                                           window_length_s=window, stage2_k_r=stage2_k_r,
                                           rate_hz=rate_w, skt=skt, mhe=mhe),
@@ -143,20 +149,30 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
     s1 = estimates.stage1
     fit = {'observation_fit': observation_fit(obs, s1.t, s1.q[:, :4], s1.s,
                                               model.p.body_weight)}
-    id_file = bag / 'opensim_id.sto' if bag.is_dir() else None
-    id_table = read_table(id_file) if id_file is not None and id_file.exists() else None
-    if id_table is not None:
-        fit['opensim_id'] = {'file': str(id_file),
-                             **id_agreement(obs, s1.t, s1.tau, id_table)}
-    say(format_fit(fit['observation_fit'], fit.get('opensim_id')))
+    # OpenSim's inverse dynamics of the recording when the bag carries it (README "Lab
+    # recordings"): opensim_id.sto unfiltered, opensim_id_15hz.sto with coordinates and
+    # plates low-passed alike at 15 Hz
+    id_tables = {}
+    for key, name in (('opensim_id', 'opensim_id.sto'),
+                      ('opensim_id_15hz', 'opensim_id_15hz.sto')):
+        id_file = bag / name if bag.is_dir() else None
+        if id_file is not None and id_file.exists():
+            id_tables[key] = read_table(id_file)
+            fit[key] = {'file': str(id_file),
+                        **id_agreement(obs, s1.t, s1.tau, id_tables[key])}
+    say(format_fit(fit['observation_fit'], fit.get('opensim_id'), fit.get('opensim_id_15hz')))
     (out / 'observation_fit.json').write_text(json.dumps(fit, indent=1))
     if not has_truth(bag):
         if figures:
             from nmt_ros.study.figures import plot_lab_fit  # matplotlib
 
+            shown = 'opensim_id_15hz' if 'opensim_id_15hz' in id_tables else 'opensim_id'
             plot_lab_fit(obs, estimates, out / 'fig_lab_fit.png', model.p.body_weight,
-                         model.p.muscles.f0, id_table, title=f'{bag.name}: estimate vs '
-                         f'measurement ({STAGE1_LABELS[stage1]})')
+                         model.p.muscles.f0, id_tables.get(shown),
+                         title=f'{bag.name}: estimate vs measurement '
+                         f'({STAGE1_LABELS[stage1]})',
+                         id_label='OpenSim ID, 15 Hz' if shown == 'opensim_id_15hz'
+                         else 'OpenSim ID')
             say(f'figure: {out / "fig_lab_fit.png"}')
         return None
     if start.t_s != 0.0:

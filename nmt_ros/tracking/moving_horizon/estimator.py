@@ -54,7 +54,8 @@ class EstimateBlock:
     q: np.ndarray           # [n, 6] rad, m
     qd: np.ndarray          # [n, 6]
     qdd: np.ndarray         # [n, 6]
-    tau: np.ndarray         # [n, 3] N m: the muscles' joint torques (ankle, knee, hip)
+    tau: np.ndarray         # [n, 3] N m: joint torques (ankle, knee, hip), settings.joint_torques
+    tau_muscle: np.ndarray  # [n, 3] N m: the muscles' joint torques
     theta: np.ndarray       # [n, 3] rad: joint angles (ankle_angle, knee_angle, hip_flexion)
     theta_dot: np.ndarray   # [n, 3] rad/s
     f: np.ndarray           # [n, 9] N: musculotendon forces
@@ -69,7 +70,8 @@ class EstimateBlock:
                              **{f: getattr(self, f)[rows] for f in BLOCK_FIELDS})
 
 
-BLOCK_FIELDS = ('t', 'q', 'qd', 'qdd', 'tau', 'theta', 'theta_dot', 'f', 'a', 'u', 's')
+BLOCK_FIELDS = ('t', 'q', 'qd', 'qdd', 'tau', 'tau_muscle', 'theta', 'theta_dot', 'f', 'a', 'u',
+                's')
 
 
 @dataclass
@@ -543,7 +545,7 @@ class MovingHorizonEstimator:
         spans = [ready[k] for k in kinds]
 
         def judged() -> tuple[EstimateBlock, str | None]:
-            both = self.estimates('', np.concatenate(spans))
+            both = self.estimates('', np.concatenate(spans), t_data=t_u)
             return both, self._implausible(both) or self._far_from_mocap(spans)
         both, why = judged()
         if why is not None and undo is not None:
@@ -585,8 +587,8 @@ class MovingHorizonEstimator:
         bad = [f for f in BLOCK_FIELDS if not np.isfinite(getattr(b, f)).all()]
         if bad:
             return f'non-finite {", ".join(bad)}'
-        if np.abs(b.tau).max(initial=0.0) > st.max_torque_nm:
-            return f'joint torque {np.abs(b.tau).max():.0f} N m'
+        if np.abs(b.tau_muscle).max(initial=0.0) > st.max_torque_nm:
+            return f'joint torque {np.abs(b.tau_muscle).max():.0f} N m'
         ratio = np.abs(b.f) / self.model.p.muscles.f0
         if ratio.max(initial=0.0) > st.max_muscle_force_f0:
             return f'muscle force {ratio.max():.1f} F0'
@@ -618,17 +620,29 @@ class MovingHorizonEstimator:
                         'of its span')
         return None
 
-    def estimates(self, kind: str, t: np.ndarray) -> EstimateBlock:
-        """Evaluate the window at instants t (inside it)."""
+    def estimates(self, kind: str, t: np.ndarray, t_data: float | None = None
+                  ) -> EstimateBlock:
+        """Evaluate the window at instants t (inside it). With ``joint_torques`` 'net', the
+        joint part of Eq. 1's residual is added in full ``lag_s`` or more behind ``t_data``
+        (the newest data, s; None: everywhere) and in proportion closer to it: at the
+        window's open end the residual rests on one side's data only (the real drop jump's
+        last sample, its landing: 563 N m at the ankle against the muscles' -257), so the
+        low-latency torques and a stream's final instants lean on the muscles'."""
         w = self.window
         v = w.values(t, 3)
         q, qd, qdd = (v[:, k, LAYOUT['q']] for k in range(3))
         a = v[:, 0, LAYOUT['a']]
-        tau, f, th, thd = self.outputs(q, qd, a)
+        sv = v[:, 0, LAYOUT['s']]
+        tau_m, f, th, thd, tau_r = self.outputs(q, qd, qdd, a, sv)
+        tau = tau_m
+        if self.settings.joint_torques == 'net':
+            share = (np.ones(t.size) if t_data is None or self.settings.lag_s <= 0 else
+                     np.clip((t_data - t) / self.settings.lag_s, 0.0, 1.0))
+            tau = tau_m + share[:, None] * tau_r
         m = self.model.p.muscles
         ex = excitation(a, v[:, 1, LAYOUT['a']], v[:, 2, LAYOUT['a']], m.tau_act, m.tau_deact)
-        return EstimateBlock(kind=kind, t=t, q=q, qd=qd, qdd=qdd, tau=tau, theta=th,
-                             theta_dot=thd, f=f, a=a, u=ex.u, s=v[:, 0, LAYOUT['s']],
+        return EstimateBlock(kind=kind, t=t, q=q, qd=qd, qdd=qdd, tau=tau, tau_muscle=tau_m,
+                             theta=th, theta_dot=thd, f=f, a=a, u=ex.u, s=sv,
                              plate=w.plate.copy())
 
     # ------------------------------------------------------------------ start

@@ -36,6 +36,27 @@ def wrench_generalized_forces(model: JumperModel, q: ca.SX, s: ca.SX) -> ca.SX:
     return jac.T @ s[0:2] + ca.vertcat(s[2], ca.SX.zeros(5))
 
 
+def trunk_residual_function(model: JumperModel) -> ca.Function:
+    """(q, e) -> the loads that close Eq. 1's residual e [6] (generalized forces, M qdd -
+    rhs): joint torques [3] (N m; ankle, knee, hip), a force on the HAT at its COM [2] (N)
+    and a moment on the HAT [1] (N m), with e = T tau + J_hat' f + e_hat m, solved bottom-up
+    (the basis of ``JumperModel.inverse_dynamics(residual_at='hat')``). The joint torques
+    are what the muscles miss of the net torques of the motion and the ground wrench; the
+    HAT's loads, what a planar rigid trunk cannot explain (as OpenSim's residual actuators
+    sit on the pelvis)."""
+    q, e = ca.SX.sym('q', 6), ca.SX.sym('e', 6)
+    T = np.asarray(model.T, dtype=float)
+    n_angles = T.shape[0] - 2
+    hat = np.zeros((n_angles, 1))
+    hat[n_angles - 1, 0] = 1.0
+    solve_angles = ca.DM(np.linalg.inv(np.hstack([T[:n_angles], hat])))
+    j_hat = ca.jacobian(model.positions(q)[3][:, n_angles - 1], q)    # [2 x 6]
+    f = e[n_angles:]
+    tau_m = solve_angles @ (e - j_hat.T @ f)[:n_angles]
+    return ca.Function('trunk_residuals', [q, e],
+                       [ca.vertcat(tau_m[:n_angles - 1], f, tau_m[n_angles - 1])])
+
+
 def contact_kinematics_function(model: JumperModel) -> ca.Function:
     """(q, qd, s) -> (generalized forces of s [6], heel and toe positions [4] (x, y each),
     their velocities [4], foot COM [2]): the pieces of Eq. 1 and of the kinematic contact
@@ -70,12 +91,19 @@ def collocation_function(model: JumperModel, sigma_dyn: np.ndarray) -> ca.Functi
 
 
 def output_function(model: JumperModel) -> ca.Function:
-    """(q, qd, a) -> (tau_m [3] N m, f [9] N, theta [3] rad, theta_dot [3] rad/s)."""
-    q, qd = ca.SX.sym('q', 6), ca.SX.sym('qd', 6)
+    """(q, qd, qdd, a, s) -> (tau_m [3] N m, f [9] N, theta [3] rad, theta_dot [3] rad/s,
+    tau_r [3] N m): tau_r, the joint torques the muscles miss (the joint part of Eq. 1's
+    residual, ``trunk_residual_function``): tau_m + tau_r is the net joint torque of the
+    estimated motion and ground wrench, bottom-up, with the rest of the residual on the HAT."""
+    q, qd, qdd = ca.SX.sym('q', 6), ca.SX.sym('qd', 6), ca.SX.sym('qdd', 6)
     a = ca.SX.sym('a', len(model.p.muscles.names))
+    s = ca.SX.sym('s', 3)
     tau_m, f = model.muscle_torques(q, qd, a)
-    return ca.Function('mhe_outputs', [q, qd, a],
-                       [tau_m, f, model.joint_angles(q), model.joint_angles(qd)])
+    rhs = (model.inertial_gravity(q, qd) + wrench_generalized_forces(model, q, s)
+           + ca.DM(model.T) @ (tau_m + model.passive_torques(q, qd)))
+    tau_r = trunk_residual_function(model)(q, model.mass_matrix(q) @ qdd - rhs)[:3]
+    return ca.Function('mhe_outputs', [q, qd, qdd, a, s],
+                       [tau_m, f, model.joint_angles(q), model.joint_angles(qd), tau_r])
 
 
 @dataclass(frozen=True)
