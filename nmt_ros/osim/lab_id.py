@@ -18,7 +18,7 @@ shipped drop jump: knee 964 N m, hip 870 N m in one 100 Hz sample). ``--grf-lowp
 filters the plates alike (the usual practice: the same cut-off for both, Kristianslund et al.
 2012, J Biomech 45:666): each plate's force and its moment about the ground origin (point x
 force + free moment, so no centre of pressure is filtered through the unloaded samples) by
-a zero-lag 4th-order Butterworth, written to ``OUT_grf_lowpass.mot`` and applied at the
+a zero-lag 4th-order Butterworth, written to ``OUT_grf_lowpass.sto`` and applied at the
 origin, which is the same wrench.
 
 OUT (.sto, N m) holds, per row of the IK file, ``ankle_angle_moment``, ``knee_angle_moment``,
@@ -90,7 +90,7 @@ def plate_feet(model_path: str | Path, ik_path: str | Path, grf_path: str | Path
 
 def lowpass_plates(grf_path: Path, out: Path, cutoff_hz: float) -> Path:
     """The plates of ``grf_path`` with force and moment about the origin low-passed (module
-    docstring), as a GRF .mot at ``out`` with the same column names (points 0)."""
+    docstring), as a GRF table at ``out`` (.sto) with the same column names (points 0)."""
     from scipy.signal import butter, filtfilt
 
     grf = read_table(grf_path)
@@ -113,9 +113,8 @@ def lowpass_plates(grf_path: Path, out: Path, cutoff_hz: float) -> Path:
             out_cols[f'{pre}_p{x}'] = np.zeros_like(f[:, k])
             out_cols[f'{pre}_m{x}'] = moment[:, k]
     labels = list(out_cols)
-    from nmt_ros.io.opensim_files import write_table
-    return write_table(out, grf.time, labels, np.column_stack([out_cols[k] for k in labels]),
-                       name='grf_lowpass', metadata={'lowpass_hz': cutoff_hz})
+    return write_sto(out, grf.time, labels, np.column_stack([out_cols[k] for k in labels]),
+                     'grf_lowpass', {'lowpass_hz': cutoff_hz})
 
 
 def write_loads(path: Path, grf_path: Path, feet: dict[str, str]) -> Path:
@@ -160,7 +159,7 @@ def run_id(model_path: Path, ik_path: Path, grf_path: Path, out: Path,
     quiet_opensim()
     feet = plate_feet(model_path, ik_path, grf_path)
     if grf_lowpass_hz > 0:
-        grf_path = lowpass_plates(grf_path, out.with_name(out.stem + '_grf_lowpass.mot'),
+        grf_path = lowpass_plates(grf_path, out.with_name(out.stem + '_grf_lowpass.sto'),
                                   grf_lowpass_hz)
     loads_xml = out.with_name(out.stem + '_external_loads.xml')
     write_loads(loads_xml, grf_path, feet)
