@@ -332,15 +332,22 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     # the joint torques of a lab subject are the net torques of the estimated motion
     # (settings.joint_torques_for), compared over contact with OpenSim's inverse dynamics of
     # the same IK and plates on the subject's 3-D model, both legs summed, coordinates and
-    # plates low-passed at 15 Hz (opensim_id_15hz.sto, nmt_ros.osim.lab_id): measured r 0.98 /
-    # 0.87 / 0.92, RMS 8 / 15 / 14 % of peak (the muscles' own torques with the mass rule's
+    # plates low-passed at 15 Hz (opensim_id_15hz.sto, nmt_ros.osim.lab_id): as published r
+    # 0.98 / 0.87 / 0.92, RMS 8 / 15 / 14 % of peak (the muscles' own torques with the mass rule's
     # strengths: 0.94 / 0.68 / 0.73, the push-off's knee 60-80 N m short); the planar
     # inverse dynamics of the imported observations themselves reaches 0.98 / 0.95 / 0.99
     assert 'joint torques: net' in proc.stdout
     agreement = json.loads((out / 'observation_fit.json').read_text())['opensim_id_15hz']
-    r = np.array([agreement['correlation'][j] for j in ('ankle', 'knee', 'hip')])
-    rms = np.array([agreement['rms_pct_peak'][j] for j in ('ankle', 'knee', 'hip')])
-    assert agreement['samples'] > 50
+    assert agreement['samples'] > 50 and agreement['band_hz'] == 15.0
+
+    def figures(a: dict) -> tuple[np.ndarray, np.ndarray]:
+        return (np.array([a['correlation'][j] for j in ('ankle', 'knee', 'hip')]),
+                np.array([a['rms_pct_peak'][j] for j in ('ankle', 'knee', 'hip')]))
+    # the estimate low-passed alike (the same band): measured 0.98 / 0.92 / 0.93, RMS 7 / 12
+    # / 13 %, the issue's bounds (r >= 0.9, RMS <= 15 %) met; as published 0.98 / 0.87 / 0.92
+    r, rms = figures(agreement)
+    assert (r > [0.95, 0.9, 0.9]).all() and (rms < [10, 15, 15]).all(), (r, rms)
+    r, rms = figures(agreement['as_published'])
     assert (r > [0.93, 0.82, 0.88]).all() and (rms < [12, 20, 19]).all(), (r, rms)
 
 
@@ -449,3 +456,27 @@ def test_planar_inverse_dynamics_of_the_import_matches_opensims_3d_one(tmp_path)
     rms_pct = 100 * rms / np.abs(ref[contact]).max(axis=0)
     assert contact.sum() > 50
     assert (r > [0.96, 0.92, 0.97]).all() and (rms_pct < [12, 12, 8]).all(), (r, rms_pct)
+
+
+def test_an_estimate_is_compared_with_a_band_limited_reference_in_its_band():
+    """``observation_fit.lowpass_estimate``: a 3 Hz sine passes a 15 Hz low-pass (within
+    1 %), a 40 Hz one is cut (below 2 %), instants missing from the estimate are bridged;
+    ``reference_band_hz`` reads lab_id's header (both filters at one cut-off, else None)."""
+    from nmt_ros.io.opensim_files import OpenSimTable
+    from nmt_ros.study.observation_fit import lowpass_estimate, reference_band_hz
+
+    t = np.arange(0.0, 2.0, 0.01)
+    x = np.column_stack([np.sin(2 * np.pi * 3 * t), np.sin(2 * np.pi * 40 * t)])
+    y = lowpass_estimate(t, x, 15.0)
+    mid = (t > 0.3) & (t < 1.7)
+    assert np.abs(y[mid, 0] - x[mid, 0]).max() < 0.01
+    assert np.abs(y[mid, 1]).max() < 0.02
+    gaps = np.delete(np.arange(t.size), [50, 51, 120])          # 3 instants not estimated
+    y = lowpass_estimate(t[gaps], x[gaps, :1], 15.0)
+    assert np.abs(y[mid[gaps], 0] - x[gaps][mid[gaps], 0]).max() < 0.01
+
+    def table(meta: dict) -> OpenSimTable:
+        return OpenSimTable(time=t, labels=('a',), data=x[:, :1], metadata=meta)
+    assert reference_band_hz(table({'lowpass_hz': '15.0', 'grf_lowpass_hz': '15.0'})) == 15.0
+    assert reference_band_hz(table({'lowpass_hz': '15.0', 'grf_lowpass_hz': '-1'})) is None
+    assert reference_band_hz(table({'lowpass_hz': '-1.0'})) is None

@@ -9,7 +9,9 @@ with OpenSim's inverse dynamics: the figures a lab recording without a truth can
   contact's first and last loaded instant, measured and estimated.
 * Joint torques against an OpenSim inverse dynamics table (``nmt_ros.osim.lab_id``: both
   legs summed, nmt_ros signs) over the same contact instants: Pearson correlation and RMS
-  difference in % of the table's peak, per joint (ankle, knee, hip).
+  difference in % of the table's peak, per joint (ankle, knee, hip); against a table whose
+  coordinates and plates were low-passed alike, with the estimate low-passed the same way
+  (and as published).
 """
 from __future__ import annotations
 
@@ -71,30 +73,75 @@ def observation_fit(obs: Observations, t_est: np.ndarray, theta_est: np.ndarray,
     return out
 
 
+def reference_band_hz(table: OpenSimTable) -> float | None:
+    """The cut-off [Hz] an inverse dynamics table was computed at when its coordinates and
+    plates were low-passed alike (``nmt_ros.osim.lab_id --lowpass F --grf-lowpass F``);
+    None for any other table."""
+    try:
+        kin = float(table.metadata.get('lowpass_hz', '-1'))
+        grf = float(table.metadata.get('grf_lowpass_hz', '-1'))
+    except ValueError:
+        return None
+    return kin if kin > 0 and grf == kin else None
+
+
+def lowpass_estimate(t: np.ndarray, x: np.ndarray, cutoff_hz: float) -> np.ndarray:
+    """``x`` [n, k] at instants t [s] low-passed like ``lab_id``'s plates (zero-lag,
+    Butterworth 2nd order forward and backward) on a uniform grid at its median step, then
+    back onto t (instants missing from the estimate are bridged linearly)."""
+    from scipy.signal import butter, filtfilt
+
+    dt = float(np.median(np.diff(t)))
+    grid = t[0] + dt * np.arange(int(round((t[-1] - t[0]) / dt)) + 1)
+    on_grid = np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+    nyquist = 0.5 / dt
+    if grid.size < 10 or cutoff_hz >= nyquist:
+        return np.asarray(x, dtype=float)
+    b, a = butter(2, cutoff_hz / nyquist)
+    smooth = filtfilt(b, a, on_grid, axis=0)
+    return np.column_stack([np.interp(t, grid, smooth[:, j]) for j in range(x.shape[1])])
+
+
 def id_agreement(obs: Observations, t_est: np.ndarray, tau_est: np.ndarray,
                  table: OpenSimTable, contact_n: float = 20.0) -> dict:
     """Joint torques tau_est [n, 3] N m (ankle, knee, hip) against an OpenSim inverse dynamics
-    ``table`` over the measured contact instants the estimate covers (see the module)."""
+    ``table`` over the measured contact instants the estimate covers (see the module). A
+    table computed with coordinates and plates low-passed alike (``reference_band_hz``) is
+    compared with the estimate low-passed the same way (the same band: the reference holds
+    nothing above its cut-off), and with the estimate as published under ``as_published``."""
     t_est = np.asarray(t_est, dtype=float)
+    tau_est = np.asarray(tau_est, dtype=float)
     kw = _covered(obs.t_wrench, t_est)
     t_w = obs.t_wrench[kw][obs.wrench[kw, 1] > contact_n]
     t_w = t_w[(t_w >= table.time[0] - 1e-9) & (t_w <= table.time[-1] + 1e-9)]
     if t_w.size < 3:
         return {'samples': int(t_w.size)}
-    est = _onto(t_w, t_est, tau_est)
     ref = np.column_stack([np.interp(t_w, table.time, table.column(c)) for c in ID_COLUMNS])
-    corr, rms = {}, {}
-    for j, name in enumerate(JOINTS):
-        corr[name] = float(np.corrcoef(est[:, j], ref[:, j])[0, 1])
-        rms[name] = float(100 * np.sqrt(np.mean((est[:, j] - ref[:, j]) ** 2))
-                          / np.abs(ref[:, j]).max())
-    return {'samples': int(t_w.size), 'correlation': corr, 'rms_pct_peak': rms,
-            'peak_nm': dict(zip(JOINTS, np.abs(ref).max(axis=0).tolist()))}
+
+    def scores(tau: np.ndarray) -> tuple[dict, dict]:
+        est = _onto(t_w, t_est, tau)
+        corr, rms = {}, {}
+        for j, name in enumerate(JOINTS):
+            corr[name] = float(np.corrcoef(est[:, j], ref[:, j])[0, 1])
+            rms[name] = float(100 * np.sqrt(np.mean((est[:, j] - ref[:, j]) ** 2))
+                              / np.abs(ref[:, j]).max())
+        return corr, rms
+
+    out: dict = {'samples': int(t_w.size),
+                 'peak_nm': dict(zip(JOINTS, np.abs(ref).max(axis=0).tolist()))}
+    band = reference_band_hz(table)
+    corr, rms = scores(tau_est)
+    if band is not None and t_est.size >= 10:
+        out['as_published'] = {'correlation': corr, 'rms_pct_peak': rms}
+        out['band_hz'] = band
+        corr, rms = scores(lowpass_estimate(t_est, tau_est, band))
+    out.update(correlation=corr, rms_pct_peak=rms)
+    return out
 
 
 def format_fit(fit: dict, agreement: dict | None = None, filtered: dict | None = None) -> str:
     """One to three lines for a report (``agreement``: against the unfiltered inverse
-    dynamics, ``filtered``: against the one low-passed at 15 Hz)."""
+    dynamics, ``filtered``: against the one low-passed at 15 Hz, ``id_agreement``'s)."""
     a = fit['angle_rms_deg']
     text = (f'fit to the observations ({fit["span_s"][0]:.3f}..{fit["span_s"][1]:.3f} s): '
             f'segment angles {" / ".join(f"{a[s]:.1f}" for s in SEGMENTS)} deg RMS '
@@ -104,12 +151,19 @@ def format_fit(fit: dict, agreement: dict | None = None, filtered: dict | None =
         text += (f'; over contact ({fit["contact_samples"]} force samples above '
                  f'{fit["contact_n"]:g} N): Fy {f["fy"]:.1f} / Fx {f["fx"]:.1f} % BW RMS, '
                  f'moment {fit["moment_rms_nm"]:.0f} N m RMS')
-    for what, a in (('', agreement), (' (coordinates and plates low-passed at 15 Hz)',
-                                      filtered)):
-        if a and 'correlation' in a:
-            c, r = a['correlation'], a['rms_pct_peak']
-            text += (f'\njoint torques vs OpenSim inverse dynamics{what} over contact: '
-                     f'correlation {" / ".join(f"{c[j]:.2f}" for j in JOINTS)}, RMS '
-                     f'{" / ".join(f"{r[j]:.0f}" for j in JOINTS)} % of its peak '
-                     '(ankle, knee, hip)')
+    def figures(a: dict) -> str:
+        c, r = a['correlation'], a['rms_pct_peak']
+        return (f'correlation {" / ".join(f"{c[j]:.2f}" for j in JOINTS)}, RMS '
+                f'{" / ".join(f"{r[j]:.0f}" for j in JOINTS)} % of its peak')
+    for a in (agreement, filtered):
+        if not (a and 'correlation' in a):
+            continue
+        if 'band_hz' in a:
+            text += (f'\njoint torques vs OpenSim inverse dynamics with coordinates and plates '
+                     f'low-passed at {a["band_hz"]:g} Hz, over contact: {figures(a)} (ankle, '
+                     f'knee, hip; the estimate low-passed alike; as published: '
+                     f'{figures(a["as_published"])})')
+        else:
+            text += ('\njoint torques vs OpenSim inverse dynamics over contact: '
+                     f'{figures(a)} (ankle, knee, hip)')
     return text
