@@ -61,7 +61,7 @@ class MovingHorizonSettings:
     # the real drop jump's push-off, knee 60-80 N m estimated where the motion and forces
     # need 140-220; its estimated motion's net torques follow OpenSim's inverse dynamics
     # (joint_torques_for, README). On the shipped jumper's own routine the model is exact
-    # and the muscles' torques are the better estimate: 16 realisations, hip 3.9 -> 5.7 % of
+    # and the muscles' torques are the better estimate: 16 realisations, hip 3.8 -> 5.7 % of
     # peak with 'net' (flight 10 -> 19), so 'muscle' is kept there
     joint_torques: str = 'muscle'
     # kinematic contact: a loaded contact point (its share of the vertical force, from the
