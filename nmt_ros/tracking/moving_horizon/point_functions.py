@@ -52,9 +52,9 @@ def trunk_residual_function(model: JumperModel) -> ca.Function:
     solve_angles = ca.DM(np.linalg.inv(np.hstack([T[:n_angles], hat])))
     j_hat = ca.jacobian(model.positions(q)[3][:, n_angles - 1], q)    # [2 x 6]
     f = e[n_angles:]
-    tau_m = solve_angles @ (e - j_hat.T @ f)[:n_angles]
+    torques = solve_angles @ (e - j_hat.T @ f)[:n_angles]   # the joints', then the HAT's
     return ca.Function('trunk_residuals', [q, e],
-                       [ca.vertcat(tau_m[:n_angles - 1], f, tau_m[n_angles - 1])])
+                       [ca.vertcat(torques[:n_angles - 1], f, torques[n_angles - 1])])
 
 
 def contact_kinematics_function(model: JumperModel) -> ca.Function:
