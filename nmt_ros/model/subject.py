@@ -302,8 +302,6 @@ def strengths_from_moment_arms(arms: dict, legs: int = 2,
     ``subject_moment_arms``'s result (each group's members as the model has them)."""
     f0, l_opt = {}, {}
     for n, a in arms['muscles'].items():
-        if 'l_opt_m' not in a:
-            continue
         w = np.asarray(a['f0_n'], dtype=float)
         f0[n] = float(legs * w.sum())
         l_opt[n] = float(np.dot(w, a['l_opt_m']) / w.sum())

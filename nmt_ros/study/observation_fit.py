@@ -85,30 +85,14 @@ def reference_band_hz(table: OpenSimTable) -> float | None:
     return kin if kin > 0 and grf == kin else None
 
 
-def lowpass_estimate(t: np.ndarray, x: np.ndarray, cutoff_hz: float) -> np.ndarray:
-    """``x`` [n, k] at instants t [s] low-passed like ``lab_id``'s plates (zero-lag,
-    Butterworth 2nd order forward and backward) on a uniform grid at its median step, then
-    back onto t (instants missing from the estimate are bridged linearly)."""
-    from scipy.signal import butter, filtfilt
-
-    dt = float(np.median(np.diff(t)))
-    grid = t[0] + dt * np.arange(int(round((t[-1] - t[0]) / dt)) + 1)
-    on_grid = np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
-    nyquist = 0.5 / dt
-    if grid.size < 10 or cutoff_hz >= nyquist:
-        return np.asarray(x, dtype=float)
-    b, a = butter(2, cutoff_hz / nyquist)
-    smooth = filtfilt(b, a, on_grid, axis=0)
-    return np.column_stack([np.interp(t, grid, smooth[:, j]) for j in range(x.shape[1])])
-
-
 def id_agreement(obs: Observations, t_est: np.ndarray, tau_est: np.ndarray,
                  table: OpenSimTable, contact_n: float = 20.0) -> dict:
     """Joint torques tau_est [n, 3] N m (ankle, knee, hip) against an OpenSim inverse dynamics
     ``table`` over the measured contact instants the estimate covers (see the module). A
     table computed with coordinates and plates low-passed alike (``reference_band_hz``) is
-    compared with the estimate low-passed the same way (the same band: the reference holds
-    nothing above its cut-off), and with the estimate as published under ``as_published``."""
+    compared with the estimate low-passed by OpenSim's own coordinate filter at that cut-off
+    (``nmt_ros.io.ivd_opensim.lowpass``; the same band: the reference holds nothing above
+    it), and with the estimate as published under ``as_published``."""
     t_est = np.asarray(t_est, dtype=float)
     tau_est = np.asarray(tau_est, dtype=float)
     kw = _covered(obs.t_wrench, t_est)
@@ -131,10 +115,12 @@ def id_agreement(obs: Observations, t_est: np.ndarray, tau_est: np.ndarray,
                  'peak_nm': dict(zip(JOINTS, np.abs(ref).max(axis=0).tolist()))}
     band = reference_band_hz(table)
     corr, rms = scores(tau_est)
-    if band is not None and t_est.size >= 10:
+    if band is not None and t_est.size >= 10 and band < 0.5 / np.median(np.diff(t_est)):
+        from nmt_ros.io.ivd_opensim import lowpass
+
         out['as_published'] = {'correlation': corr, 'rms_pct_peak': rms}
         out['band_hz'] = band
-        corr, rms = scores(lowpass_estimate(t_est, tau_est, band))
+        corr, rms = scores(lowpass(t_est, tau_est, band))
     out.update(correlation=corr, rms_pct_peak=rms)
     return out
 
