@@ -301,7 +301,9 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     assert 'ground wrench smoothed at 40 Hz;' in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing)
-    # without a loss of control: measured 2.0 / 2.8 / 2.6 / 1.1 deg RMS, 3.9 % BW RMS of
+    # without a loss of control: measured 1.8 / 1.3 / 1.5 / 0.8 deg RMS (the issue's bound:
+    # 2 deg; 1.9 / 3.3 / 2.5 / 1.0 before the subject's knee range and the lab subject's
+    # excitation rate weight: the knee hyperextended after the take-off), 3.4 % BW RMS of
     # vertical force in contact (the issue's bound: 5 %) and the contacts on the plates'
     # samples. With the jumper's muscle paths (gait10dof18musc: gluteus maximus without its
     # moment arm in deep flexion) the thigh and trunk were 4.1 / 1.6 deg: the hip extensors
@@ -316,7 +318,7 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     ia = np.searchsorted(obs_a.stamp_ns, est_a.stamp_ns)
     assert (obs_a.stamp_ns[ia] == est_a.stamp_ns).all()
     rms_deg = np.degrees(np.sqrt(np.mean((est_a.position - obs_a.position[ia]) ** 2, axis=0)))
-    assert (rms_deg < np.array([3.0, 3.5, 3.5, 2.0])).all(), rms_deg
+    assert (rms_deg <= 2.0).all(), rms_deg
     iw = np.searchsorted(obs_w.stamp_ns, est_w.stamp_ns)
     contact = obs_w.force[iw, 1] > 20.0
     bw = 94.5 * 9.81
@@ -343,12 +345,14 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     def figures(a: dict) -> tuple[np.ndarray, np.ndarray]:
         return (np.array([a['correlation'][j] for j in ('ankle', 'knee', 'hip')]),
                 np.array([a['rms_pct_peak'][j] for j in ('ankle', 'knee', 'hip')]))
-    # the estimate low-passed alike (the same band): measured 0.98 / 0.92 / 0.93, RMS 8 / 12
-    # / 13 %, the issue's bounds (r >= 0.9, RMS <= 15 %) met; as published 0.98 / 0.87 / 0.92
+    # the estimate low-passed alike (the same band): measured 0.99 / 0.94 / 0.93, RMS 8 / 11
+    # / 14 %, the issue's bounds (r >= 0.9, RMS <= 15 %) met; as published 0.99 / 0.83 /
+    # 0.91, RMS 8 / 17 / 17 (with the jumper's excitation rate weight 0.98 / 0.87 / 0.92,
+    # 8 / 15 / 14: the faster excitations' impact transients lie above the reference's band)
     r, rms = figures(agreement)
     assert (r > [0.95, 0.9, 0.9]).all() and (rms < [10, 15, 15]).all(), (r, rms)
     r, rms = figures(agreement['as_published'])
-    assert (r > [0.93, 0.82, 0.88]).all() and (rms < [12, 20, 19]).all(), (r, rms)
+    assert (r > [0.95, 0.8, 0.88]).all() and (rms < [12, 20, 20]).all(), (r, rms)
 
 
 # --------------------------------------------------------------------------- the subject

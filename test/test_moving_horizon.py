@@ -895,3 +895,19 @@ def test_joint_torques_auto_is_net_for_a_lab_subject_only():
     assert joint_torques_for('muscle', lab_subject=True) == 'muscle'
     with pytest.raises(ValueError, match='auto'):
         joint_torques_for('reserve', lab_subject=False)
+
+
+def test_excitation_rate_weight_auto_is_the_lab_subjects_for_a_lab_subject_only():
+    from nmt_ros.tracking.moving_horizon.settings import (
+        LAB_EXCITATION_RATE_WEIGHT,
+        excitation_rate_weight_for,
+    )
+    default = MovingHorizonSettings().excitation_rate_weight
+    assert LAB_EXCITATION_RATE_WEIGHT < default
+    assert excitation_rate_weight_for(0.0, lab_subject=True) == LAB_EXCITATION_RATE_WEIGHT
+    assert excitation_rate_weight_for(0.0, lab_subject=False) == default
+    assert excitation_rate_weight_for(4.0, lab_subject=True) == 4.0
+    with pytest.raises(ValueError, match='auto'):
+        excitation_rate_weight_for(-1.0, lab_subject=False)
+    with pytest.raises(ValueError, match='auto'):
+        excitation_rate_weight_for(float('nan'), lab_subject=True)

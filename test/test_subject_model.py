@@ -295,3 +295,45 @@ def test_subject_strengths_are_the_subject_models_own() -> None:
     l_mt = np.asarray(model.musculotendon_lengths(zero)).ravel()
     assert np.allclose(along(subject, l_mt), along(jumper_scaled, l_mt), rtol=1e-9)
     assert not np.allclose(subject.l_opt, jumper_scaled.l_opt)
+
+
+def test_subject_passive_limits_start_at_its_models_clamped_ranges() -> None:
+    """The shipped drop jump's subject: where its .osim clamps a coordinate to a narrower
+    range than the jumper's passive limits (read here from the XML: OpenCap's knee_angle_r
+    0..140 deg of flexion, positive; hip_flexion_r -30..120 deg), the passive torque starts
+    at the range's end; elsewhere the jumper's limits stay."""
+    import re
+
+    text = REAL_MODEL.read_text()
+
+    def clamped_range(name: str) -> tuple[float, float]:
+        block = re.search(rf'<Coordinate name="{name}">(.*?)</Coordinate>', text, re.S).group(1)
+        assert re.search(r'<clamped>\s*true\s*<', block)
+        lo, hi = (float(v) for v in re.search(r'<range>([^<]+)<', block).group(1).split())
+        return lo, hi
+
+    knee_lo, knee_hi = clamped_range('knee_angle_r')     # flexion positive: negated
+    hip_lo, hip_hi = clamped_range('hip_flexion_r')
+    _, scale = read_subject(REPO / 'bags' / 'real_dropjump')
+    assert scale.joint_range_rad['knee_angle'] == pytest.approx((-knee_hi, -knee_lo))
+    assert scale.joint_range_rad['hip_flexion'] == pytest.approx((hip_lo, hip_hi))
+    jumper = load_parameters().passive
+    subject = load_subject_model(REPO / 'bags' / 'real_dropjump').p.passive
+    assert subject.theta_upper[1] == pytest.approx(-knee_lo)              # 0: no hyperextension
+    assert subject.theta_lower[2] == pytest.approx(hip_lo)               # -30 deg, not -40
+    assert subject.theta_upper[1] < jumper.theta_upper[1]
+    for j, (lo, hi) in ((0, (jumper.theta_lower[0], jumper.theta_upper[0])),
+                        (1, (jumper.theta_lower[1], None)), (2, (None, jumper.theta_upper[2]))):
+        if lo is not None:
+            assert subject.theta_lower[j] == lo
+        if hi is not None:
+            assert subject.theta_upper[j] == hi
+    # 3 deg of knee hyperextension (knee_angle = shank - thigh angle): the subject's passive
+    # knee torque flexes it back with ~90 N m, the jumper's (onset 7.4 deg) with ~1 N m
+    q = np.zeros(6)
+    q[1] = np.radians(3.0)
+    model = load_subject_model(REPO / 'bags' / 'real_dropjump')
+    assert float(np.asarray(model.joint_angles(q)).ravel()[1]) == pytest.approx(q[1])
+    knee_subject = float(np.asarray(model.passive_torques(q, np.zeros(6))).ravel()[1])
+    knee_jumper = float(np.asarray(default_model().passive_torques(q, np.zeros(6))).ravel()[1])
+    assert knee_subject < -50.0 and -5.0 < knee_jumper < 0.0, (knee_subject, knee_jumper)

@@ -46,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "muscles' or the net torques of the estimated motion (default auto: "
                         "net for a lab recording's subject, the muscles' for the shipped "
                         "jumper); the live node's joint_torques")
+    parser.add_argument('--excitation-rate-weight', type=float, default=0.0, metavar='W',
+                        help="moving-horizon estimator: the excitations' rate prior w_du "
+                        "(default 0 = auto: 1 for a lab recording's subject, 10 for the "
+                        "shipped jumper); the live node's excitation_rate_weight")
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')
 
@@ -68,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
                             figures=not args.no_figures, say=_say, stage1=args.stage1,
                             stage2_k_r=args.stage2_kr, start_s=args.start,
                             wrench_cutoff_hz=args.wrench_cutoff,
-                            joint_torques=args.joint_torques)
+                            joint_torques=args.joint_torques,
+                            excitation_rate_weight=args.excitation_rate_weight)
     except ValueError as err:
         print(f'nmt track: error: {err}', file=sys.stderr)
         return 2

@@ -26,6 +26,12 @@ A :class:`Subject` holds what is measured of a person (from a scaled OpenSim mod
   normalised fibre length at the zero pose stays the scaled jumper's). Geometry and strength
   from one model: moment arms from the subject's model with the jumper's fibres would set
   the fibres' normalised speeds per rad/s by the ratio of two models' numbers.
+* joint ranges: where the subject's .osim clamps a joint coordinate to a range narrower than
+  the jumper's passive joint limits, the passive torque's onset moves to the range's end
+  (``SubjectScale.joint_range_rad``; :func:`joint_ranges_from_moment_arms`). The angles the
+  lab's IK gives never leave that range (OpenCap's knee stops at 0 deg, the jumper's
+  passive knee only at 7.4 deg of hyperextension): without it the real drop jump's estimate
+  hyperextended the knee 10-15 deg after the take-off, where the IK's knee stopped at 0.
 
 A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
 :func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
@@ -41,6 +47,7 @@ import numpy as np
 import yaml
 
 from nmt_ros.model.parameters import (
+    JOINT_COORDINATES,
     MUSCLES,
     SEGMENTS,
     JumperParameters,
@@ -92,6 +99,10 @@ class SubjectScale:
     # such muscle's tendon slack length moves so that its normalised fibre length at the
     # zero pose stays the scaled jumper's (the operating point its path was fitted around)
     l_opt_m: dict[str, float] = field(default_factory=dict)
+    # the subject model's clamped coordinate ranges [rad, the jumper's signs], per
+    # JOINT_COORDINATES name: {name: (lower, upper)}; the passive joint torques start at
+    # whichever of these and the jumper's limits is the narrower
+    joint_range_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         out = {'mass': dict(self.mass), 'length': dict(self.length),
@@ -104,6 +115,9 @@ class SubjectScale:
             out['max_isometric_force_source'] = self.f0_source
         if self.l_opt_m:
             out['optimal_fiber_length_m'] = {n: float(v) for n, v in self.l_opt_m.items()}
+        if self.joint_range_rad:
+            out['joint_range_rad'] = {n: [float(lo), float(hi)]
+                                      for n, (lo, hi) in self.joint_range_rad.items()}
         return out
 
 
@@ -190,7 +204,13 @@ def scale_parameters(params: JumperParameters, scale: SubjectScale) -> JumperPar
     pj = params.passive
     k = pj.k.copy()
     k[:, [0, 2]] *= scale.passive                      # amplitudes k1, k3 (N m)
-    passive = replace(pj, k=k, damping=pj.damping * scale.passive)
+    lower, upper = pj.theta_lower.copy(), pj.theta_upper.copy()
+    for j, name in enumerate(JOINT_COORDINATES):       # the subject model's clamped ranges
+        if name in scale.joint_range_rad:
+            lo, hi = scale.joint_range_rad[name]
+            lower[j], upper[j] = max(lower[j], lo), min(upper[j], hi)
+    passive = replace(pj, k=k, damping=pj.damping * scale.passive, theta_lower=lower,
+                      theta_upper=upper)
     m = params.muscles
     kmus = np.array([scale.muscle_length[n] for n in m.names])
     paths = {n: replace(path, coefficients=path.coefficients * scale.muscle_length[n])
@@ -308,6 +328,19 @@ def strengths_from_moment_arms(arms: dict, legs: int = 2,
     return f0, l_opt
 
 
+def joint_ranges_from_moment_arms(arms: dict) -> dict[str, tuple[float, float]]:
+    """The clamped coordinate ranges [rad, the jumper's signs] of ``subject_moment_arms``'s
+    result (``coordinate_ranges``), for ``SubjectScale.joint_range_rad``."""
+    out = {}
+    for name, r in (arms.get('coordinate_ranges') or {}).items():
+        if name not in JOINT_COORDINATES:
+            raise ValueError(f'coordinate range of {name}: not one of {JOINT_COORDINATES}')
+        lo, hi = (float(v) for v in r['range_rad'])
+        if r.get('clamped') and lo < hi:
+            out[name] = (lo, hi)
+    return out
+
+
 def subject_parameters(subject: Subject, params: JumperParameters | None = None,
                        ) -> tuple[JumperParameters, SubjectScale]:
     p = params or load_parameters()
@@ -373,10 +406,17 @@ def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
                                (k.get('max_isometric_force_n') or {}).items()},
                          f0_source=str(k.get('max_isometric_force_source', '')),
                          l_opt_m={n: float(v) for n, v in
-                                  (k.get('optimal_fiber_length_m') or {}).items()})
+                                  (k.get('optimal_fiber_length_m') or {}).items()},
+                         joint_range_rad={n: (float(v[0]), float(v[1])) for n, v in
+                                          (k.get('joint_range_rad') or {}).items()})
     unknown = [n for n in [*scale.paths, *scale.f0_n, *scale.l_opt_m] if n not in MUSCLES]
     if unknown:
         raise ValueError(f'{path}: paths or strengths for unknown muscles {unknown}')
+    unknown = [n for n in scale.joint_range_rad if n not in JOINT_COORDINATES]
+    bad = [n for n, (lo, hi) in scale.joint_range_rad.items() if not lo < hi]
+    if unknown or bad:
+        raise ValueError(f'{path}: joint_range_rad: unknown coordinates {unknown} or empty '
+                         f'ranges {bad} (coordinates {JOINT_COORDINATES}, [lower, upper] rad)')
     return subject, scale
 
 

@@ -66,7 +66,11 @@ from nmt_ros.topics import (
 )
 from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.moving_horizon.estimator import EstimateBlock, MovingHorizonEstimator
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings, joint_torques_for
+from nmt_ros.tracking.moving_horizon.settings import (
+    MovingHorizonSettings,
+    excitation_rate_weight_for,
+    joint_torques_for,
+)
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.streaming import Decimator, Stage1Output, Stage1Stream
 
@@ -153,11 +157,18 @@ class SkeletalTrackerNode(TrackerNode):
                                "estimated motion and ground wrench) or 'auto' (net with a "
                                "subject_file, a lab recording's subject; the muscles' for the "
                                'shipped jumper)')
+        self.excitation_rate_weight = p(
+            'excitation_rate_weight', 0.0, "mhe: the excitations' rate prior w_du [s]; 0 = "
+            "auto (1 with a subject_file, a lab recording's subject; 10 for the shipped "
+            'jumper)', low=0.0, high=1e6)
         try:
             self.joint_torques = joint_torques_for(self.joint_torques, bool(self.subject_file))
+            self.excitation_rate_weight = excitation_rate_weight_for(
+                self.excitation_rate_weight, bool(self.subject_file))
         except ValueError as err:
             self.fail_to_start(str(err))
             self.joint_torques = 'muscle'
+            self.excitation_rate_weight = d.excitation_rate_weight
         self.start_s = p('start_s', 0.0, 'mhe: estimate from this trial time on [s]; earlier '
                          'samples are counted and not used (a support the force plates do '
                          'not measure, e.g. the box of a drop jump: nmt launch passes the '
@@ -194,6 +205,7 @@ class SkeletalTrackerNode(TrackerNode):
                                     iterations=self.iterations,
                                     wrench_cutoff_hz=self.wrench_cutoff_hz,
                                     excitation_weight=self.excitation_weight,
+                                    excitation_rate_weight=self.excitation_rate_weight,
                                     airborne_start_wait_s=self.airborne_start_wait_s,
                                     joint_torques=self.joint_torques,
                                     angle_rate_hz=self.angle_rate_hz,
@@ -211,7 +223,8 @@ class SkeletalTrackerNode(TrackerNode):
             'force_cutoff_hz': self.force_cutoff_hz, 'filter_window_s': self.filter_window_s,
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
             'bias_rate': self.bias_rate, 'subject_file': self.subject_file,
-            'start_s': self.start_s, 'joint_torques': self.joint_torques}
+            'start_s': self.start_s, 'joint_torques': self.joint_torques,
+            'excitation_rate_weight': self.excitation_rate_weight}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)

@@ -282,7 +282,9 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
     isometric forces ``f0_n`` [N] and optimal fibre lengths ``l_opt_m`` [m]. Coordinate
     signs are the jumper's (gait10dof18musc): a model whose knee_angle_r flexes positive
     (Rajagopal: range 0..140 deg) is posed at -knee and its knee moment arms negated.
-    Muscles none of whose alternatives the model has in full are listed as missing."""
+    Muscles none of whose alternatives the model has in full are listed as missing.
+    ``coordinate_ranges`` gives each of the three coordinates' range [rad, jumper's sign,
+    ascending] and whether the model clamps it (its IK cannot leave the range)."""
     model, state = load(source)
     cs = model.getCoordinateSet()
     muscles = model.getMuscles()
@@ -294,7 +296,14 @@ def group_moment_arms(source: str | Path, groups: dict[str, list[list[str]]],
         flexion_positive = (c == 'knee_angle'
                             and coord.getRangeMax() > abs(coord.getRangeMin()))
         sign[c] = -1.0 if flexion_positive else 1.0
-    out: dict = {'model': str(source), 'coordinate_sign': sign, 'muscles': {}, 'missing': {}}
+    ranges = {}
+    for c, k in sign.items():
+        coord = cs.get(c + '_r')
+        lo, hi = sorted((k * coord.getRangeMin(), k * coord.getRangeMax()))
+        ranges[c] = {'range_rad': [float(lo) + 0.0, float(hi) + 0.0],
+                     'clamped': bool(coord.getDefaultClamped())}
+    out: dict = {'model': str(source), 'coordinate_sign': sign, 'coordinate_ranges': ranges,
+                 'muscles': {}, 'missing': {}}
     for lumped, alternatives in groups.items():
         complete = [[m + '_r' for m in members] for members in alternatives
                     if all(muscles.contains(m + '_r') for m in members)]

@@ -35,7 +35,11 @@ from nmt_ros.study.opensim_results import write_opensim_estimates
 from nmt_ros.study.pipeline import STAGE1_LABELS, NMTSettings, run_nmt
 from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings, joint_torques_for
+from nmt_ros.tracking.moving_horizon.settings import (
+    MovingHorizonSettings,
+    excitation_rate_weight_for,
+    joint_torques_for,
+)
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.stage2 import load_stage2_settings
@@ -62,13 +66,16 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
               stage1: str = 'auto', stage2_k_r: float | None = None,
               start_s: float | None = None,
               wrench_cutoff_hz: float | None = None,
-              joint_torques: str = 'auto') -> dict | None:
+              joint_torques: str = 'auto', excitation_rate_weight: float = 0.0,
+              ) -> dict | None:
     """Run the NMT on ``bag``, write the outputs under ``out``; returns the metrics (None
     when the bag has no truth). ``window``: Stage 2 window length H [s] (windowed mode);
     ``stage2_k_r``: Stage 2 effort weight kR (None: stage2.yaml's); ``start_s``: start
     tracking there (recording time, s; None: ``plan_start``'s choice); ``wrench_cutoff_hz``:
     the moving-horizon estimator's ground-wrench smoothness [Hz] (None: its default);
     ``joint_torques``: 'muscle', 'net' or 'auto' (``settings.joint_torques_for``);
+    ``excitation_rate_weight``: the estimator's w_du (0: auto,
+    ``settings.excitation_rate_weight_for``);
     ``say``: progress."""
     bag = Path(bag)
     model = load_subject_model(bag)
@@ -112,9 +119,11 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         say(f'Stage 1 in flight: foot angle weight {FLIGHT_FOOT_WEIGHT:g} while unloaded '
             f'(Table 1: {skt.weights[0]:g} on the ground)')
     # the moving-horizon estimator at the bag's rates, as the live node gets them
-    mhe = MovingHorizonSettings(angle_rate_hz=rate_a, wrench_rate_hz=rate_w,
-                                joint_torques=joint_torques_for(joint_torques,
-                                                                subject is not None))
+    mhe = MovingHorizonSettings(
+        angle_rate_hz=rate_a, wrench_rate_hz=rate_w,
+        joint_torques=joint_torques_for(joint_torques, subject is not None),
+        excitation_rate_weight=excitation_rate_weight_for(excitation_rate_weight,
+                                                          subject is not None))
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work
@@ -123,7 +132,10 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         say(f'moving-horizon estimator: ground wrench smoothed at {cutoff:g} Hz'
             + (f' ({lowered})' if lowered else '') + f'; joint torques: {mhe.joint_torques}'
             + (' (the net torques of the estimated motion: a lab subject)'
-               if mhe.joint_torques == 'net' else ' (the muscles\')'))
+               if mhe.joint_torques == 'net' else ' (the muscles\')')
+            + f'; excitation rate weight {mhe.excitation_rate_weight:g}'
+            + (' (a lab subject)' if subject is not None and not excitation_rate_weight
+               else ''))
     run = run_nmt(model, obs, NMTSettings(stage1=stage1, stage2_mode=stage2_mode,
                                           window_length_s=window, stage2_k_r=stage2_k_r,
                                           rate_hz=rate_w, skt=skt, mhe=mhe),

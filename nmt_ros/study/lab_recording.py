@@ -381,9 +381,11 @@ def with_implied_mass(rec: LabRecording) -> LabRecording:
 def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecording:
     """The recording with its subject's muscle paths taken from the subject's own model
     (``subject_scaling.yaml`` ``muscle_groups``; ``nmt_ros.model.subject``,
-    ``paths_from_moment_arms``); groups the model lacks keep the scaled jumper's path and are
-    reported in ``facts['subject_paths']``."""
+    ``paths_from_moment_arms``), with its muscles' strengths and fibre lengths and its
+    clamped joint ranges (``joint_ranges_from_moment_arms``); groups the model lacks keep
+    the scaled jumper's path and are reported in ``facts['subject_paths']``."""
     from nmt_ros.model.subject import (
+        joint_ranges_from_moment_arms,
         moment_arm_spec,
         paths_from_moment_arms,
         strengths_from_moment_arms,
@@ -396,10 +398,14 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
         rec.facts.setdefault('warnings', []).append(
             f"muscle paths: the scaled jumper's ({model} gave no moment arms: {exc})")
         return rec
-    scale = replace(rec.scale, paths={}, f0_n={}, f0_source='', l_opt_m={})
+    scale = replace(rec.scale, paths={}, f0_n={}, f0_source='', l_opt_m={},
+                    joint_range_rad={})
     paths = paths_from_moment_arms(scale_parameters(load_parameters(), scale), arms)
     f0, l_opt = strengths_from_moment_arms(arms)
+    ranges = joint_ranges_from_moment_arms(arms)
     facts = {'from_model': sorted(paths),
+             'joint_range_deg': {n: [round(float(np.degrees(v)), 2) for v in r]
+                                 for n, r in ranges.items()},
              'max_isometric_force_n': {n: round(v, 1) for n, v in f0.items()},
              'optimal_fiber_length_m': {n: round(v, 4) for n, v in l_opt.items()},
              'moment_arm_fit_rms_mm': {n: round(1e3 * p['moment_arm_rms_m'], 3)
@@ -410,7 +416,8 @@ def with_subject_paths(rec: LabRecording, model: str | os.PathLike) -> LabRecord
     source = (f'{Path(model).name}: the members\' max_isometric_force summed (two legs) and '
               'optimal_fiber_length F0-weighted')
     return replace(rec, scale=replace(scale, paths=paths, f0_n=f0, l_opt_m=l_opt,
-                                      f0_source=source if f0 else ''))
+                                      f0_source=source if f0 else '',
+                                      joint_range_rad=ranges))
 
 
 def check_momentum(rec: LabRecording) -> dict:
