@@ -305,7 +305,8 @@ def test_mass_implied_weighs_the_subject_with_its_own_force_plates(tmp_path: Pat
     """`--mass implied`: the subject takes the body mass the recording's momentum balance
     implies (the shipped drop jump: the impulse between its two flights, 94.5 kg by the IK
     route; the markers' COM with the jumper's proportions here), and says so; a --mass that
-    is neither a number nor 'implied' is a clear error."""
+    is neither a number, 'implied' nor 'model' (or 'model' without --model) is a clear
+    error."""
     import json
 
     import yaml
@@ -332,7 +333,9 @@ def test_mass_implied_weighs_the_subject_with_its_own_force_plates(tmp_path: Pat
     proc = run('--mass', '75.16', '--out', str(tmp_path / 'b2'))
     assert proc.returncode == 0 and 'imply a body mass of' in proc.stderr
     proc = run('--mass', 'heavy', '--out', str(tmp_path / 'b3'))
-    assert proc.returncode == 2 and "'heavy': a mass in kg or 'implied'" in proc.stderr
+    assert proc.returncode == 2 and "'heavy': a mass in kg, 'implied' or 'model'" in proc.stderr
+    proc = run('--mass', 'model', '--out', str(tmp_path / 'b4'))      # no --model to keep
+    assert proc.returncode == 2 and '--mass model needs --model' in proc.stderr
 
 
 def test_a_model_the_jumpers_joints_cannot_pose_keeps_the_jumpers_paths(tmp_path: Path) -> None:

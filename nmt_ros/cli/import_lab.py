@@ -1,7 +1,7 @@
 """``nmt import-lab``: a lab recording as an observation bag, with its subject's model.
 
     nmt import-lab --ik IK.mot --grf GRF.mot [--external-loads X.xml] --model S.osim
-                   [--mass KG] --out BAG
+                   [--mass KG|implied|model] --out BAG
     nmt import-lab --trc M.trc --grf GRF.mot (--model S.osim [--mass KG] | --mass KG
                    --height M) --out BAG
     nmt import-lab --c3d F.c3d [--grf GRF.mot] (--model S.osim [--mass KG] | --mass KG
@@ -23,12 +23,13 @@ import sys
 
 
 def _mass(text: str) -> float | str:
-    if text == 'implied':
+    if text in ('implied', 'model'):
         return text
     try:
         return float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: a mass in kg or 'implied'") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: a mass in kg, 'implied' or "
+                                         "'model'") from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,10 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='OpenSim ExternalLoads .xml naming the plates of --grf')
     parser.add_argument('--model', type=Path, help="the subject's scaled OpenSim model")
     parser.add_argument('--mass', type=_mass,
-                        help='body mass [kg], or "implied": the mass the force plates imply '
+                        help='body mass [kg]; "implied": the mass the force plates imply '
                         '(a quiet stance on them, or the impulse of a contact between two '
-                        'flights); with --model the model\'s segment masses are scaled to it '
-                        '(its mass distribution kept)')
+                        'flights); "model": the --model\'s own masses. With --model the '
+                        'model\'s segment masses are scaled to it (its mass distribution '
+                        'kept). Default with --model: the model\'s masses, unless the plates '
+                        'imply a mass more than 5 %% away, then the implied one (said)')
     parser.add_argument('--height', type=float, help='stature [m] (without --model)')
     parser.add_argument('--name', default=None, help='subject name (default: file stem)')
     parser.add_argument('--marker-map', type=Path, default=None,

@@ -312,7 +312,11 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
     """``nmt import-lab``: one route (IK, TRC or C3D) to a :class:`LabRecording` with its
     subject and the momentum balance checked (:func:`check_momentum`); with a model and
     ``subject_paths``, the muscle paths of its own geometry (:func:`with_subject_paths`).
-    ``mass_kg`` 'implied': the body mass the force plates imply (:func:`with_implied_mass`)."""
+    ``mass_kg``: a mass [kg]; 'implied': the body mass the force plates imply
+    (:func:`with_implied_mass`); 'model': the model's own masses; None (the default) with a
+    model: the model's masses unless the plates imply a mass more than
+    :data:`MASS_TOLERANCE` away from them, then the implied one, said in the warnings
+    (:func:`with_consistent_mass`)."""
     from nmt_ros.io.marker_map import load_marker_map
     from nmt_ros.study.marker_calibration import calibrate
     routes = {'ik': ik, 'trc': trc, 'c3d': c3d}
@@ -325,14 +329,17 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
     if route == 'ik' and model is None:
         raise ValueError('--ik needs --model (the .osim the IK was solved with)')
     source = Path(routes[route])
+    if isinstance(mass_kg, str) and mass_kg not in ('implied', 'model'):
+        raise ValueError(f"--mass {mass_kg!r}: a mass in kg, 'implied' or 'model'")
+    if mass_kg == 'model' and model is None:
+        raise ValueError("--mass model needs --model (the .osim whose masses to keep)")
     implied = mass_kg == 'implied'
-    if isinstance(mass_kg, str) and not implied:
-        raise ValueError(f"--mass {mass_kg!r}: a mass in kg or 'implied'")
+    consistent = mass_kg is None and model is not None
     if implied and model is None:
         mass_kg = load_parameters().total_mass    # the jumper's proportions, re-weighed below
     subject, measures = lab_subject(name or source.stem, model,
-                                    None if implied and model is not None else mass_kg,
-                                    height_m)
+                                    None if isinstance(mass_kg, str) and model is not None
+                                    else mass_kg, height_m)
     kw = {} if max_gap_s is None else {'max_gap_s': max_gap_s}
     if route == 'ik':
         frame = SagittalFrame(forward or '+x', up or '+y')
@@ -351,6 +358,8 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
     check_momentum(rec)
     if implied:
         rec = with_implied_mass(rec)
+    elif consistent:
+        rec = with_consistent_mass(rec)
     if model is not None and subject_paths:
         rec = with_subject_paths(rec, model)
     return rec
@@ -375,6 +384,34 @@ def with_implied_mass(rec: LabRecording) -> LabRecording:
     out = replace(rec, subject=subject, scale=scale_factors(subject),
                   facts={**rec.facts, 'warnings': kept, 'mass_from': 'implied by the recording'})
     check_momentum(out)
+    return out
+
+
+def with_consistent_mass(rec: LabRecording) -> LabRecording:
+    """The recording with a body mass its forces agree with: the subject model's own when
+    the force plates imply a mass within :data:`MASS_TOLERANCE` of it (or imply none), else
+    the implied one (:func:`with_implied_mass`), said in ``facts['warnings']``.
+
+    A scaled .osim need not carry its subject's mass: OpenCap's models keep the generic
+    Rajagopal segment masses (the shipped drop jump: 75.3 kg, where the plates weigh the
+    subject at 94.5 kg). A model whose centre of mass cannot follow the forces it is asked
+    to match makes the tracker fight the data: with 75.3 kg the shipped drop jump's
+    estimate lost control at the second landing and fit the vertical force to 4.4 % BW,
+    with the implied mass 3.4 % BW and no loss of control (README, "Lab recordings")."""
+    mb = rec.facts.get('momentum_balance', {})
+    mass = mb.get('implied_mass_kg')
+    if mass is None or abs(mass / rec.subject.mass_kg - 1.0) <= MASS_TOLERANCE:
+        return rec
+    model_mass = rec.subject.mass_kg
+    out = with_implied_mass(rec)
+    out.facts['warnings'].append(
+        f'the force plates imply a body mass of {mass:.1f} kg ({mb["implied_mass_method"]}), '
+        f'{100 * (mass / model_mass - 1):+.1f} % from the model\'s {model_mass:.1f} kg (more '
+        f'than {100 * MASS_TOLERANCE:g} %): the subject model uses {mass:.1f} kg, its '
+        'segment masses scaled to it (--mass model keeps the model\'s masses, --mass KG sets '
+        'the measured one)')
+    out.facts['mass_from'] = (f'implied by the recording (the model\'s {model_mass:.1f} kg '
+                              f'differ by more than {100 * MASS_TOLERANCE:g} %)')
     return out
 
 
