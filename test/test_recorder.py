@@ -391,6 +391,10 @@ def test_latency_is_measured_between_receive_times_or_publish_times():
     assert (published['min_ms'], published['max_ms']) == (40.0, 50.0)
     with pytest.raises(ValueError, match='clock'):
         latency_ms(est, obs, clock='wall')
+    # from a time after the first observation on: only the instants at or after it count
+    late = latency_ms(est, obs, after_s=15e-9)
+    assert (late['n'], late['min_ms'], late['max_ms']) == (1, 45.0, 45.0)
+    assert latency_ms(est, obs, after_s=25e-9)['n'] == 0
 
 
 def test_latency_by_phase_puts_each_estimate_in_its_truth_phase():

@@ -79,10 +79,15 @@ def delays_ms(estimate: TopicTimes, observation: TopicTimes,
 
 
 def latency_ms(estimate: TopicTimes, observation: TopicTimes,
-               clock: str = 'receive') -> dict[str, float]:
+               clock: str = 'receive', after_s: float = 0.0) -> dict[str, float]:
     """Delay [ms] of the estimates after the observations with the same stamps (``delays_ms``):
-    n, p50, p99, max, min."""
-    return _percentiles(delays_ms(estimate, observation, clock)[1])
+    n, p50, p99, max, min; ``after_s`` > 0: of the instants at least that long after the
+    first observation [s] only (the start-up left out, as the estimator issue's coverage
+    rule counts from the first second)."""
+    stamps, delay = delays_ms(estimate, observation, clock)
+    if after_s > 0 and observation.stamp_ns.size:
+        delay = delay[stamps >= observation.stamp_ns.min() + round(after_s * 1e9)]
+    return _percentiles(delay)
 
 
 def _percentiles(delay: np.ndarray) -> dict[str, float]:
@@ -297,6 +302,13 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     if low in recorded:
         summary['latency_ms']['low_latency_joint_torques'] = latency_ms(
             topic_times(recording, low), obs)
+    # the same from the first second on: a stream that begins in the air waits for its
+    # landing (the estimator's airborne start), which sets the p99 of a short routine
+    summary['latency_after_1s_ms'] = {
+        name: latency_ms(topic_times(recording, topic), obs, after_s=1.0)
+        for name, topic in (('joint_torques', topics.SKELETAL_JOINT_TORQUES),
+                            ('muscle_forces', topics.MUSCLE_FORCES),
+                            ('low_latency_joint_torques', low)) if topic in recorded}
     summary['cpu'] = {n: {'share': round(_float(statuses.get(n, {}), 'cpu_share'), 3),
                           'cpu_s': round(_float(statuses.get(n, {}), 'cpu_s_active'), 3),
                           'wall_s': round(_float(statuses.get(n, {}), 'wall_s_active'), 3)}
@@ -438,6 +450,10 @@ def format_summary(s: Mapping[str, Any]) -> str:
     for name, v in lat.items():
         lines.append(f'latency observation -> {name}: p50 {v["p50_ms"]:.1f} ms, '
                      f'p99 {v["p99_ms"]:.1f} ms, max {v["max_ms"]:.1f} ms ({v["n"]} samples)')
+    after = {n: v for n, v in s.get('latency_after_1s_ms', {}).items() if v['n']}
+    if after:
+        lines.append('  from the first second on, p50 / p99 ms: ' + ', '.join(
+            f'{n} {v["p50_ms"]:.0f} / {v["p99_ms"]:.0f}' for n, v in after.items()))
     for name, phases in s.get('latency_by_phase_ms', {}).items():
         lines.append(f'  {name} by phase, p50 / p99 ms: ' + ', '.join(
             f'{p} {v["p50_ms"]:.0f} / {v["p99_ms"]:.0f}' for p, v in phases.items()
