@@ -397,7 +397,7 @@ def with_consistent_mass(rec: LabRecording) -> LabRecording:
     subject at 94.5 kg). A model whose centre of mass cannot follow the forces it is asked
     to match makes the tracker fight the data: with 75.3 kg the shipped drop jump's
     estimate lost control at the second landing and fit the vertical force to 4.4 % BW,
-    with the implied mass 3.4 % BW and no loss of control (README, "Lab recordings")."""
+    with the implied mass 3.5 % BW and no loss of control (README, "Lab recordings")."""
     mb = rec.facts.get('momentum_balance', {})
     mass = mb.get('implied_mass_kg')
     if mass is None or abs(mass / rec.subject.mass_kg - 1.0) <= MASS_TOLERANCE:
