@@ -361,7 +361,7 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
     r, rms = figures(agreement)
     assert (r > [0.95, 0.9, 0.9]).all() and (rms < [10, 15, 15]).all(), (r, rms)
     r, rms = figures(agreement['as_published'])
-    assert (r > [0.95, 0.83, 0.87]).all() and (rms < [12, 18, 19]).all(), (r, rms)
+    assert (r > [0.95, 0.83, 0.88]).all() and (rms < [12, 18, 19]).all(), (r, rms)
 
 
 # --------------------------------------------------------------------------- the subject

@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "jumper); the live node's joint_torques")
     parser.add_argument('--excitation-rate-weight', type=float, default=0.0, metavar='W',
                         help="moving-horizon estimator: the excitations' rate prior w_du "
-                        "(default 0 = auto: 1 for a lab recording's subject, 10 for the "
+                        "(default 0 = auto: 2 for a lab recording's subject, 10 for the "
                         "shipped jumper); the live node's excitation_rate_weight")
     parser.add_argument('--no-figures', action='store_true')
     parser.add_argument('--force', action='store_true', help='replace existing outputs')

@@ -159,7 +159,7 @@ class SkeletalTrackerNode(TrackerNode):
                                'shipped jumper)')
         self.excitation_rate_weight = p(
             'excitation_rate_weight', 0.0, "mhe: the excitations' rate prior w_du [s]; 0 = "
-            "auto (1 with a subject_file, a lab recording's subject; 10 for the shipped "
+            "auto (2 with a subject_file, a lab recording's subject; 10 for the shipped "
             'jumper)', low=0.0, high=1e6)
         try:
             self.joint_torques = joint_torques_for(self.joint_torques, bool(self.subject_file))
