@@ -305,11 +305,11 @@ def test_track_the_shipped_drop_jump_from_its_step_off(tmp_path):
         assert (est.stamp_ns[0] - epoch) * 1e-9 == pytest.approx(0.79)
     facts = json.loads(bag_info(out / 'estimates').custom_data['nmt.track'])
     assert facts['start_in_flight'] and facts['rate_hz'] == 100.0
-    # the estimator's ground-wrench smoothness at a 100 Hz plate: the default 100 Hz lowered
+    # the estimator's ground-wrench smoothness at a 100 Hz plate: the default 70 Hz lowered
     # to 0.8 x its Nyquist frequency, 40 Hz (a smoothing spline's limit, not the Butterworth
     # filters' 0.4), and said
     assert facts['mhe_wrench_cutoff_hz'] == 40.0
-    assert 'ground wrench smoothed at 40 Hz (wrench cut-off [100.0] Hz lowered to 40 Hz' \
+    assert 'ground wrench smoothed at 40 Hz (wrench cut-off [70.0] Hz lowered to 40 Hz' \
         in proc.stdout
     # the paper's tracker loses control in the landing, so Stage 1 is the moving-horizon
     # estimator; it reproduces what was measured (fall, landing, push-off, flight, landing)

@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'sample)')
     parser.add_argument('--wrench-cutoff', type=float, default=None, metavar='HZ',
                         help="moving-horizon estimator: the estimated ground wrench's "
-                        'smoothness, the cut-off of its smoothing-spline prior (default 100 Hz, '
+                        'smoothness, the cut-off of its smoothing-spline prior (default 70 Hz, '
                         "at most 0.8 x the force plate's Nyquist frequency; lower it for "
                         'noisy lab plates); the live node\'s wrench_cutoff_hz')
     parser.add_argument('--joint-torques', choices=('auto', 'muscle', 'net'), default='auto',

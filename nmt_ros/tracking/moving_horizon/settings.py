@@ -108,23 +108,23 @@ class MovingHorizonSettings:
     # equal or better (its one loss of control in the deep landing at both); with 2 % BW of
     # extra plate noise (6 seeds) losses of control 3 -> 1, vertical force 9.4-15.7 ->
     # 3.8-3.9 % BW. (Before the ground support, contact_support_sd_m, 40 Hz had lost
-    # control four times on that recording.) 40 -> 100 Hz (plates of 250 Hz and faster;
+    # control four times on that recording.) 40 -> 70 Hz (plates of 175 Hz and faster;
     # slower ones keep 0.8 x Nyquist, the real drop jump's 100 Hz plate 40 Hz): even on
     # noise- and bias-free observations of the routine the 40 Hz prior rounded the landing
-    # impacts (seed 1, torques 9.8 / 7.8 / 8.7 -> 4.1 / 5.8 / 9.0 % of peak at landing).
-    # Realisations 1-8 of bags/routine (bench/bench_estimator_seeds.py, 2026-12-05): the
-    # estimator's muscle forces 7.7 / 8.5 -> 4.4 / 4.1 % F0 (seeds 1-4 / 5-8), landing
-    # torques 11.9 / 7.7 / 10.0 -> 8.2 / 6.1 / 9.0 and 11.7 / 7.8 / 10.0 -> 7.7 / 6.5 / 9.5 %
-    # of peak, ankle 3.4 -> 2.9 and 3.0 -> 2.5; worse: quiet-stance hip 3.2 -> 3.6 and the
-    # low-latency hip 5.7 -> 6.7 (the newest wrench is less smoothed), jump heights 5.8 / 7.5
-    # -> 5.0 / 9.1 % off (one seed 16.6); with --faults (seeds 1-3) muscles 8.8 -> 3.8 % F0,
-    # no loss of control. 70 Hz was between (muscles 6.1 / 5.9 % F0); 150 and 250 Hz lost
-    # control more (0.75 and 1.25 a minute) for no better torques. The price is CPU: the
-    # rescue iterations run more often (bench/bench_estimator.py --duration 60 --lags 0.05:
-    # 0.14 -> 0.30 s per s of data, update p50 2.7 -> 8.1 ms, p99 10.3 -> 12.3 ms). The real
-    # drop jump resampled to 1000 Hz plates: in-band r vs OpenSim's 15 Hz ID 0.99 / 0.94 /
-    # 0.93 -> 0.98 / 0.95 / 0.94, Fy 2.7 -> 1.9 % BW RMS
-    wrench_cutoff_hz: float = 100.0
+    # impacts (seed 1, landing torques 9.8 / 7.8 / 8.7 % of peak; 100 Hz 4.1 / 5.8 / 9.0).
+    # Realisations 1-16 of bags/routine (bench/bench_estimator_seeds.py, 2026-12-05),
+    # 40 / 70 / 100 Hz: refined torques 3.0 / 2.1 / 3.8, 2.7 / 2.0 / 3.9, 2.5 / 1.9 / 4.0 %
+    # of peak, landing 11.4 / 8.0 / 10.1, 8.4 / 7.5 / 9.6, 7.2 / 6.5 / 8.9, the estimator's
+    # muscle forces 8.1 / 6.1 / 4.2 % F0, jump heights 7.3 / 7.4 / 7.0 % off; CPU
+    # (bench/bench_estimator.py --duration 60 --lags 0.05) 0.14 / 0.18 / 0.30 s per s of
+    # data: above 40 Hz the newest wrench rows stay poorly explained after the step more
+    # often, so the rescue's checked iterations run at more updates (at 100 Hz at most),
+    # which converges the window, at a CPU the 2x live graph cannot spare (`nmt demo --rate
+    # 2`, refined torques p99 from 1 s on 85 / 150 / 245 ms). 70 Hz: the landings most of the
+    # way, the hip unchanged, CPU within a quarter of a core; `nmt track --wrench-cutoff 100`
+    # where CPU is no limit. The real drop jump resampled to 1000 Hz plates at 100 Hz: in-band
+    # r vs OpenSim's 15 Hz ID 0.99 / 0.94 / 0.93 -> 0.98 / 0.95 / 0.94, Fy 2.7 -> 1.9 % BW RMS
+    wrench_cutoff_hz: float = 70.0
     wrench_max_cutoff_fraction: float = 0.8
     # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
     # 0.1 the HAT followed the mocap noise (+-0.5 deg at 3-5 Hz, hip torque +-40 N m in
