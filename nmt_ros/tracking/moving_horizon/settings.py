@@ -123,7 +123,8 @@ class MovingHorizonSettings:
     # 2`, refined torques p99 from 1 s on 85 / 150 / 245 ms). 70 Hz: the landings most of the
     # way, the hip unchanged, CPU within a quarter of a core; `nmt track --wrench-cutoff 100`
     # where CPU is no limit. The real drop jump resampled to 1000 Hz plates at 100 Hz: in-band
-    # r vs OpenSim's 15 Hz ID 0.99 / 0.94 / 0.93 -> 0.98 / 0.95 / 0.94, Fy 2.7 -> 1.9 % BW RMS
+    # r vs OpenSim's 15 Hz ID 0.99 / 0.94 / 0.93 -> 0.98 / 0.95 / 0.94, Fy 2.7 -> 1.9 % BW RMS;
+    # at 70 Hz r 0.99 / 0.95 / 0.93, Fy 1.9 % BW, but the shank 1.7 -> 2.1 deg RMS off its IK
     wrench_cutoff_hz: float = 70.0
     wrench_max_cutoff_fraction: float = 0.8
     # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
