@@ -70,6 +70,7 @@ from nmt_ros.tracking.moving_horizon.settings import (
     MovingHorizonSettings,
     excitation_rate_weight_for,
     joint_torques_for,
+    landing_rate_sd_scale_for,
 )
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
 from nmt_ros.tracking.streaming import Decimator, Stage1Output, Stage1Stream
@@ -206,6 +207,8 @@ class SkeletalTrackerNode(TrackerNode):
                                     wrench_cutoff_hz=self.wrench_cutoff_hz,
                                     excitation_weight=self.excitation_weight,
                                     excitation_rate_weight=self.excitation_rate_weight,
+                                    landing_rate_sd_scale=landing_rate_sd_scale_for(
+                                        bool(self.subject_file)),
                                     airborne_start_wait_s=self.airborne_start_wait_s,
                                     joint_torques=self.joint_torques,
                                     angle_rate_hz=self.angle_rate_hz,
@@ -224,7 +227,8 @@ class SkeletalTrackerNode(TrackerNode):
             'wrench_rate_hz': self.wrench_rate_hz, 'angle_rate_hz': self.angle_rate_hz,
             'bias_rate': self.bias_rate, 'subject_file': self.subject_file,
             'start_s': self.start_s, 'joint_torques': self.joint_torques,
-            'excitation_rate_weight': self.excitation_rate_weight}
+            'excitation_rate_weight': self.excitation_rate_weight,
+            'landing_rate_sd_scale': self.mhe_settings.landing_rate_sd_scale}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)

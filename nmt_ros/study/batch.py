@@ -39,6 +39,7 @@ from nmt_ros.tracking.moving_horizon.settings import (
     MovingHorizonSettings,
     excitation_rate_weight_for,
     joint_torques_for,
+    landing_rate_sd_scale_for,
 )
 from nmt_ros.tracking.optimal_tracker import OptimalTrackingSettings
 from nmt_ros.tracking.skeletal_tracker import SKTSettings
@@ -123,7 +124,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         angle_rate_hz=rate_a, wrench_rate_hz=rate_w,
         joint_torques=joint_torques_for(joint_torques, subject is not None),
         excitation_rate_weight=excitation_rate_weight_for(excitation_rate_weight,
-                                                          subject is not None))
+                                                          subject is not None),
+        landing_rate_sd_scale=landing_rate_sd_scale_for(subject is not None))
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work

@@ -672,6 +672,9 @@ class MovingHorizonEstimator:
         w.plate_reversion_s = np.asarray(st.plate_reversion_s, dtype=float)
         w.joint_range = self.joint_range
         w.extrapolation_velocity = st.extrapolation_velocity
+        w.landing_load = st.landing_load_bw * self.model.p.body_weight
+        w.landing_span_s = st.landing_span_s
+        w.landing_relax = st.landing_relax()
         if st.arrival_noise_sd is not None:
             noise = np.empty(NV)
             noise[LAYOUT['q']] = np.r_[np.radians([st.arrival_noise_sd[0]] * 4),

@@ -73,11 +73,14 @@ def _huber(r: ca.SX, k: float) -> ca.SX:
 
 def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
     """The compiled one-segment kernel: (c [4 NV], p [NX], u_a [A], y_a [A, 4] (row-major),
-    m_a [A, 4], u_w [W], y_w [W, 3], m_w [W, 3], scale, colloc) -> (H [NB + NX]^2,
+    m_a [A, 4], u_w [W], y_w [W, 3], m_w [W, 3], scale, colloc, relax [2]) -> (H [NB + NX]^2,
     g [NB + NX], cost, angle cost, angle rows, wrench cost, wrench rows).
 
     ``scale`` divides Eq. 1 and the contact rows (a continuation at a cold start; 1 after);
-    ``colloc`` (0/1) switches the Gauss-point terms (0: a segment's extra samples)."""
+    ``colloc`` (0/1) switches the Gauss-point terms (0: a segment's extra samples);
+    ``relax`` multiplies the SDs of two priors at this segment (1: as specified): the ground
+    wrench's 2nd derivative and the excitations' rate (around a landing, where both
+    change faster than anywhere else: ``SlidingWindow.prior_relaxation``)."""
     s = spec
     c = ca.SX.sym('c', 4 * NV)
     p = ca.SX.sym('p', NX)
@@ -85,6 +88,7 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
     u_a, y_a, m_a = ca.SX.sym('u_a', A), ca.SX.sym('y_a', 4 * A), ca.SX.sym('m_a', 4 * A)
     u_w, y_w, m_w = ca.SX.sym('u_w', W), ca.SX.sym('y_w', 3 * W), ca.SX.sym('m_w', 3 * W)
     scale, colloc = ca.SX.sym('scale'), ca.SX.sym('colloc')
+    relax = ca.SX.sym('relax', 2)
     ctrl = [c[k * NV:(k + 1) * NV] for k in range(4)]
 
     def at(u: ca.SX, block: str, order: int) -> ca.SX:
@@ -179,11 +183,12 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
         udot = (s.tau_act * add + beta * ad + (1 - beta) * u * ad) / den
         over_u = u - ca.fmin(ca.fmax(u, 0.0), 1.0)
         over_a = a - ca.fmin(ca.fmax(a, 0.0), 1.0)
-        rows.append(colloc * quad * ca.vertcat(np.sqrt(s.w_u) * u, np.sqrt(s.w_du) * udot,
+        rows.append(colloc * quad * ca.vertcat(np.sqrt(s.w_u) * u,
+                                               np.sqrt(s.w_du) * udot / relax[1],
                                                np.sqrt(s.rho) * over_u,
                                                np.sqrt(s.rho) * over_a))
         # the ground wrench is smooth (a smoothing-spline prior on its 2nd derivative)
-        rows.append(colloc * quad * at(g_u, 's', 2) / ca.DM(s.wrench_accel_sd))
+        rows.append(colloc * quad * at(g_u, 's', 2) / (ca.DM(s.wrench_accel_sd) * relax[0]))
     z = ca.vertcat(c, p)
     r_all = ca.vertcat(*rows)
     J = ca.jacobian(r_all, z)
@@ -191,8 +196,8 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
     w_cost = sum(ca.sumsqr(x) for x in groups['wrench'])
     hsym, hval = ca.vertcat(*held), ca.vertcat(*held_values)
     r_all, J, a_cost, w_cost = ca.substitute([r_all, J, a_cost, w_cost], [hsym], [hval])
-    inputs = [c, p, u_a, y_a, m_a, u_w, y_w, m_w, scale, colloc]
-    names = ['c', 'p', 'u_a', 'y_a', 'm_a', 'u_w', 'y_w', 'm_w', 'scale', 'colloc']
+    inputs = [c, p, u_a, y_a, m_a, u_w, y_w, m_w, scale, colloc, relax]
+    names = ['c', 'p', 'u_a', 'y_a', 'm_a', 'u_w', 'y_w', 'm_w', 'scale', 'colloc', 'relax']
     rows_fn = ca.Function('mhe_segment_rows', inputs,
                           [r_all, J, a_cost, ca.sum1(m_a), w_cost, ca.sum1(m_w)],
                           names, ['r', 'J', 'a_cost', 'a_rows', 'w_cost', 'w_rows'],

@@ -116,6 +116,14 @@ class SlidingWindow:
         # step from there needs no re-linearisation of the same segments
         self._fresh: tuple[np.ndarray, np.ndarray, tuple] | None = None
         self._data_version = 0
+        # priors relaxed around landings (``prior_relaxation``): the vertical force [N] whose
+        # upward crossing is a landing (inf: none), how far [s] around one a segment counts
+        # as near it, and the SD multipliers there (wrench 2nd derivative, excitation rate)
+        self.landing_load = np.inf
+        self.landing_span_s = 0.0
+        self.landing_relax = np.ones(2)
+        self._landings = np.zeros(0)    # landing times [s] found so far
+        self._landings_of: tuple | None = None   # the data they were found in
 
     # ------------------------------------------------------------------ shape
     @property
@@ -206,6 +214,49 @@ class SlidingWindow:
         self._data_version += 1
 
     # ------------------------------------------------------------------ linearise
+    def landings(self) -> np.ndarray:
+        """Times [s] where the plate's vertical force rises through ``landing_load``: the
+        first sample above it, after 3 ms below and followed by 3 ms above (a one-sample spike
+        is not a landing). Landings found in earlier calls are kept (the samples before the
+        window are gone) for a second."""
+        seen = (self._data_version, self.wrench.t.size, self.first)
+        if seen == self._landings_of:
+            return self._landings
+        self._landings_of = seen
+        t, fy = self.wrench.t, self.wrench.y[:, 1]
+        ok = np.isfinite(fy)
+        t, fy = t[ok], fy[ok]
+        if t.size > 2:
+            k = max(1, int(np.ceil(0.003 / max(float(np.median(np.diff(t))), 1e-6))))
+            up = (fy > self.landing_load).astype(np.int8)
+            if up.size >= 2 * k:
+                run = np.lib.stride_tricks.sliding_window_view(up, k)
+                low, high = run.max(axis=1) == 0, run.min(axis=1) == 1     # [n - k + 1]
+                i = np.arange(k, up.size - k + 1)
+                new = t[i[high[i] & low[i - k]]]
+                known = self._landings
+                if known.size and new.size:
+                    new = new[np.abs(new[:, None] - known[None, :]).min(axis=1) > 1e-9]
+                self._landings = np.sort(np.concatenate([known, new]))
+        self._landings = self._landings[self._landings >= self.t_start - 1.0]
+        return self._landings
+
+    def prior_relaxation(self, segments: np.ndarray) -> np.ndarray:
+        """SD multipliers [S, 2] of the kernel's ``relax`` input per segment:
+        ``landing_relax`` for segments within ``landing_span_s`` of a landing
+        (``landings``), ones elsewhere."""
+        segments = np.asarray(segments)
+        out = np.ones((segments.size, 2))
+        if not np.isfinite(self.landing_load) or np.all(self.landing_relax == 1):
+            return out
+        tl = self.landings()
+        if tl.size:
+            t0 = self.grid.time(segments) - self.landing_span_s
+            t1 = self.grid.time(segments + 1) + self.landing_span_s
+            pos = np.minimum(np.searchsorted(tl, t0), tl.size - 1)
+            out[(tl[pos] >= t0) & (tl[pos] <= t1)] = self.landing_relax
+        return out
+
     def _pack(self, samples: Samples, segments: np.ndarray, capacity: int, k: int,
               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """Samples of ``segments`` padded to ``capacity`` per segment: batches of (slot [S'],
@@ -247,6 +298,7 @@ class SlidingWindow:
         ang = self._pack(self.angles, segments, kern.angle_capacity, 4)
         wr = self._pack(self.wrench, segments, kern.wrench_capacity, 3)
         z = self.points_of(segments, C, plate)
+        relax = self.prior_relaxation(segments)
         n = NB + NX
         H, g = np.zeros((S, n, n)), np.zeros((S, n))
         cost, rows = np.zeros(S), np.zeros((S, 4))
@@ -269,7 +321,7 @@ class SlidingWindow:
                     parts += [u, y, m]
             ones = np.ones((slots.size, 1))
             out = kern(z[slots, :NB], z[slots, NB:], *parts, dynamics_scale * ones,
-                       ones * (call == 0))
+                       ones * (call == 0), relax[slots])
             H[slots] += out[0]
             g[slots] += out[1]
             cost[slots] += out[2][:, 0]
