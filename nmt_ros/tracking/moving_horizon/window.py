@@ -216,9 +216,10 @@ class SlidingWindow:
     # ------------------------------------------------------------------ linearise
     def landings(self) -> np.ndarray:
         """Times [s] where the plate's vertical force rises through ``landing_load``: the
-        first sample above it, after 3 ms below and followed by 3 ms above (a one-sample spike
-        is not a landing). Landings found in earlier calls are kept (the samples before the
-        window are gone) for a second."""
+        first sample above it, after at least 3 ms below and followed by at least 3 ms above
+        (a one-sample spike is not a landing, except on a plate slower than 333 Hz, where
+        3 ms is one sample). Landings found in earlier calls are kept for a second (the
+        samples before the window are gone)."""
         seen = (self._data_version, self.wrench.t.size, self.first)
         if seen == self._landings_of:
             return self._landings
