@@ -217,20 +217,26 @@ def stance(truth, model):
     return held, obs, run
 
 
+def _window_after(model, st, obs, until_s):
+    """The window of an estimator fed the samples of ``obs`` up to ``until_s`` [s] in time
+    order, sample by sample."""
+    est = MovingHorizonEstimator(model, st)
+    for t, k, i in sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
+                          + [(t, 1, i) for i, t in enumerate(obs.t_wrench)]):
+        if t > until_s:
+            break
+        (est.add_angles if k == 0 else est.add_wrench)(t, (obs.angles if k == 0
+                                                           else obs.wrench)[i])
+        est.poll()
+    return est.window
+
+
 def test_kernel_equals_the_independent_numpy_residuals(stance, model):
     """The compiled segment kernel (SX residuals, J'J in C) and the numpy oracle give the
     same Gauss-Newton blocks on a window of real data, perturbed off the optimum."""
     held, obs, _ = stance
     st = MovingHorizonSettings()
-    est = MovingHorizonEstimator(model, st)
-    for t, k, i in sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
-                          + [(t, 1, i) for i, t in enumerate(obs.t_wrench)]):
-        if t > 0.2:
-            break
-        (est.add_angles if k == 0 else est.add_wrench)(t, (obs.angles if k == 0
-                                                           else obs.wrench)[i])
-        est.poll()
-    w = est.window
+    w = _window_after(model, st, obs, 0.2)
     C = w.C + 0.002 * RNG.normal(size=w.C.shape)
     plate = w.plate + np.array([3.0, -2.0, 0.5, 0.004])
     segs = np.arange(w.first + 2, w.first + 8)
@@ -291,15 +297,7 @@ def test_landings_are_upward_crossings_held_3_ms_and_relax_the_priors_near_them(
     within ``landing_span_s`` of it and ones to the rest."""
     held, obs, _ = stance
     st = MovingHorizonSettings()
-    est = MovingHorizonEstimator(model, st)
-    for t, k, i in sorted([(t, 0, i) for i, t in enumerate(obs.t_angles)]
-                          + [(t, 1, i) for i, t in enumerate(obs.t_wrench)]):
-        if t > 0.2:
-            break
-        (est.add_angles if k == 0 else est.add_wrench)(t, (obs.angles if k == 0
-                                                           else obs.wrench)[i])
-        est.poll()
-    w = est.window
+    w = _window_after(model, st, obs, 0.2)
     bw = model.p.body_weight
     assert w.landing_load == pytest.approx(st.landing_load_bw * bw)
     assert w.landing_span_s == st.landing_span_s > 0
