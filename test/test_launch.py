@@ -21,10 +21,10 @@ BAG = ROOT / 'bags' / 'reference_jump'
 NMT = [sys.executable, '-m', 'nmt_ros.cli.main']
 
 
-def nmt(*args, log: Path | None = None):
+def nmt(*args, log: Path | None = None, env: dict | None = None):
     stdout = subprocess.PIPE if log is None else open(log, 'w')  # noqa: SIM115
     return subprocess.Popen([*NMT, *map(str, args)], stdout=stdout, stderr=subprocess.STDOUT,
-                            text=True, env=dict(os.environ))
+                            text=True, env={**os.environ, **(env or {})})
 
 
 def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
@@ -38,10 +38,16 @@ def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
 
 @pytest.mark.parametrize('rate', [1.0, 4.0])
 def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
+    import pstats
+
     from nmt_ros.study.recording_evaluation import graph_summary
 
-    record = tmp_path / 'rec'
-    proc = nmt('launch', '--record', record, '--rate', rate, '--log-dir', tmp_path / 'logs')
+    record, profiles = tmp_path / 'rec', tmp_path / 'profiles'
+    # at 4x every node also runs under cProfile (NMT_PROFILE_DIR): same outcome, and a
+    # profile of each node's main thread
+    env = {'NMT_PROFILE_DIR': str(profiles)} if rate > 1 else {}
+    proc = nmt('launch', '--record', record, '--rate', rate, '--log-dir', tmp_path / 'logs',
+               env=env)
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode == 0, out
     assert 'graph finished' in out and 'problem' not in out
@@ -60,6 +66,12 @@ def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
     assert 0 < lat['joint_torques']['p50_ms'] < lat['muscle_forces']['p50_ms']
     params = (tmp_path / 'logs' / 'params.yaml').read_text()
     assert 'expected_subscribers: 2' in params and f'rate: {rate}' in params
+    if env:
+        for node in ('observation_publisher', 'skeletal_tracker', 'muscle_tracker',
+                     'recorder'):
+            stats = pstats.Stats(str(profiles / f'{node}.prof'))
+            assert any(fn[2] == 'spin_once' or 'spin_once' in fn[2]
+                       for fn in stats.stats), node     # its executor's loop was profiled
 
 
 def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):

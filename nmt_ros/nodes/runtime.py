@@ -3,7 +3,10 @@
 :func:`run_node` is the ``main()`` of every node: ``rclpy.init`` (with our own SIGINT/SIGTERM
 handling, so a node can finish cleanly: the recorder closes its bag, the trackers wait until
 their last messages are acknowledged), spin until the node is done or a signal arrives, then
-``destroy_node`` and ``try_shutdown``. :func:`make_executor` picks the executor.
+``destroy_node`` and ``try_shutdown``. :func:`make_executor` picks the executor. With
+``NMT_PROFILE_DIR`` set, the node's main thread runs under cProfile and its statistics go to
+``$NMT_PROFILE_DIR/<node name>.prof`` when it ends (``python -m pstats FILE``: where a node's
+CPU goes, measured in the running graph).
 :func:`cli_node` gives a CLI verb (``nmt echo``, ``nmt bag play``) a node in its own rclpy
 context.
 """
@@ -11,6 +14,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+import cProfile
+import os
+from pathlib import Path
 import signal
 import sys
 import threading
@@ -61,10 +67,14 @@ def run_node(factory: Callable[..., NmtNode], args: Sequence[str] | None = None,
     stop = _Stop()
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     node = None
+    profile_dir = os.environ.get('NMT_PROFILE_DIR')
+    profile = cProfile.Profile() if profile_dir else None
     try:
         node = factory()
         executor = make_executor(executor)
         executor.add_node(node)
+        if profile is not None:
+            profile.enable()
         while rclpy.ok() and not stop.event.is_set() and not node.done:
             executor.spin_once(timeout_sec=0.05)
         node.on_shutdown(interrupted=stop.event.is_set())
@@ -74,6 +84,11 @@ def run_node(factory: Callable[..., NmtNode], args: Sequence[str] | None = None,
             node.on_shutdown(interrupted=True)
         return 0 if node is None else node.exit_code
     finally:
+        if profile is not None:
+            profile.disable()
+            if node is not None:
+                Path(profile_dir).mkdir(parents=True, exist_ok=True)
+                profile.dump_stats(str(Path(profile_dir) / f'{node.get_name()}.prof'))
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
