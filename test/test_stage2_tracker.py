@@ -330,11 +330,12 @@ def _contact_rms_relative(res: Stage2Result, contact: np.ndarray) -> np.ndarray:
 
 def test_reference_jump_full_horizon_tracks_true_torques(tracker, clip_tracker, jump,
                                                          jump_full):
-    """Max-height jump (prime movers at u = 1 much of the push-off): < 3 % of each joint's
-    peak over the contact phase; the paper's clipped LQT misses that by far."""
+    """Max-height jump (prime movers at u = 1 much of the push-off): < 1 % of each joint's
+    peak over the contact phase (measured 0.2 / 0.7 / 0.3 % at kR 100; the paper's kR 1000
+    leaves the knee at 1.7 %); the paper's clipped LQT misses that by far."""
     res, tr, contact = jump_full, jump['truth'], jump['contact']
     rel = _contact_rms_relative(res, contact)
-    assert np.all(rel < 0.03), rel
+    assert np.all(rel < 0.01), rel
     assert np.all((res.u >= 0) & (res.u <= 1)) and np.all((res.a >= 0) & (res.a <= 1))
     rep = res.saturation
     for name in ('gmax', 'hams', 'vas', 'sol'):            # saturated, and planned so
@@ -363,14 +364,15 @@ def test_reference_jump_windowed_matches_full_horizon(tracker, jump, jump_full):
 
 
 def test_reference_jump_nmt_height(tracker, jump, jump_full):
-    """The skeleton driven by the Stage-2 excitations jumps within 2 % of the actual height."""
+    """The skeleton driven by the Stage-2 excitations jumps within 1 % of the actual height
+    (measured -0.54 % at kR 100; the paper's kR 1000 undertracks the push's end: -1.34 %)."""
     from nmt_ros.study.pipeline import simulate_stage2
 
     model, tr, res = tracker.model, jump['truth'], jump_full
     sim = simulate_stage2(model, res, tr.q[0], tr.qd[0], tr.x0, float(tr.t[-1]))
     i = int(np.searchsorted(sim.t, sim.liftoff_s))
     height = model.jump_height(sim.x[i, :6], sim.x[i, 6:12])['height_m']
-    assert abs(height / jump['height_m'] - 1) < 0.02, (height, jump['height_m'])
+    assert abs(height / jump['height_m'] - 1) < 0.01, (height, jump['height_m'])
 
 
 def test_rest_activations_from_the_first_torque_sample(tracker, jump):
