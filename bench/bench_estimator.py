@@ -14,28 +14,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
-import sys
 import time
 
-# One BLAS thread, as `nmt` and the nodes run (before numpy loads): a multithreaded BLAS
-# sums in another order, and the estimator's outcome moved with it (seed 2 of
-# bench_estimator_seeds: 3.24 / 2.06 / 4.00 -> 3.32 / 2.15 / 3.99 % of peak, jump heights
-# 6.8 -> 5.5 % off), so figures are comparable only with the threads fixed
-for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_var, '1')
+from single_threaded import ROOT  # first: one BLAS thread before numpy loads
 
-import numpy as np  # noqa: E402
+# isort: split
+import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from nmt_ros.io.trial_bag import read_observations, read_truth  # noqa: E402
-from nmt_ros.model.jumper import default_model  # noqa: E402
-from nmt_ros.study.phase_scores import format_phase_scores, phase_scores  # noqa: E402
-from nmt_ros.tracking.moving_horizon.estimator import estimate  # noqa: E402
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings  # noqa: E402
+from nmt_ros.io.trial_bag import read_observations, read_truth
+from nmt_ros.model.jumper import default_model
+from nmt_ros.study.phase_scores import format_phase_scores, phase_scores
+from nmt_ros.tracking.moving_horizon.estimator import estimate
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
 
 def main() -> int:

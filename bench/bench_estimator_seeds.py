@@ -20,38 +20,29 @@ import argparse
 from dataclasses import replace
 import json
 import math
-import os
 from pathlib import Path
-import sys
 import warnings
 
-# One BLAS thread, as `nmt` and the nodes run (before numpy loads): a multithreaded BLAS
-# sums in another order, and the estimator's outcome moved with it (seed 2 of
-# bench_estimator_seeds: 3.24 / 2.06 / 4.00 -> 3.32 / 2.15 / 3.99 % of peak, jump heights
-# 6.8 -> 5.5 % off), so figures are comparable only with the threads fixed
-for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_var, '1')
+from single_threaded import ROOT  # first: one BLAS thread before numpy loads
 
-import numpy as np  # noqa: E402
+# isort: split
+import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from nmt_ros import topics  # noqa: E402
-from nmt_ros.io.bags import read_topics_arrays  # noqa: E402
-from nmt_ros.io.trial_bag import read_truth  # noqa: E402
-from nmt_ros.model.jumper import default_model  # noqa: E402
-from nmt_ros.records import Truth  # noqa: E402
-from nmt_ros.study.metrics import takeoffs  # noqa: E402
-from nmt_ros.study.phase_scores import PHASES, phase_scores  # noqa: E402
-from nmt_ros.study.recording_evaluation import jump_table  # noqa: E402
-from nmt_ros.study.routine_observations import (  # noqa: E402
+from nmt_ros import topics
+from nmt_ros.io.bags import read_topics_arrays
+from nmt_ros.io.trial_bag import read_truth
+from nmt_ros.model.jumper import default_model
+from nmt_ros.records import Truth
+from nmt_ros.study.metrics import takeoffs
+from nmt_ros.study.phase_scores import PHASES, phase_scores
+from nmt_ros.study.recording_evaluation import jump_table
+from nmt_ros.study.routine_observations import (
     RoutineObservationSettings,
     make_routine_observations,
 )
-from nmt_ros.tracking.moving_horizon.estimator import estimate  # noqa: E402
-from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings  # noqa: E402
-from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE  # noqa: E402
+from nmt_ros.tracking.moving_horizon.estimator import estimate
+from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 
 
 def plate_rate_truth(bag: str) -> tuple[Truth, Truth]:

@@ -19,25 +19,20 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 import json
-import os
 from pathlib import Path
-import sys
 import time
 
-for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_var, '1')
+from single_threaded import ROOT  # first: one BLAS thread before numpy loads
 
-import numpy as np  # noqa: E402
+# isort: split
+import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from nmt_ros.io.bags import bag_info  # noqa: E402
-from nmt_ros.io.trial_bag import read_observations, read_truth  # noqa: E402
-from nmt_ros.model.jumper import default_model  # noqa: E402
-from nmt_ros.study.metrics import compute_metrics, jump_from  # noqa: E402
-from nmt_ros.study.observations import ObservationSettings, make_observations  # noqa: E402
-from nmt_ros.study.pipeline import NMTSettings, run_nmt  # noqa: E402
+from nmt_ros.io.bags import bag_info
+from nmt_ros.io.trial_bag import read_observations, read_truth
+from nmt_ros.model.jumper import default_model
+from nmt_ros.study.metrics import compute_metrics, jump_from
+from nmt_ros.study.observations import ObservationSettings, make_observations
+from nmt_ros.study.pipeline import NMTSettings, run_nmt
 
 
 def main() -> int:
