@@ -119,6 +119,10 @@ class SkeletalTrackerNode(TrackerNode):
                                    '200 gave the estimator\'s own muscle forces 4.3 instead of '
                                    '7.9 % F0 at equal torques, with more losses of control)',
                                    low=0.0, high=1e6)
+        self.still_rate_sd_scale = p(
+            'still_rate_sd_scale', d.still_rate_sd_scale, "mhe: the excitations' rate prior "
+            'SD times this where the force plate says the body is still (quiet stance; 1 = '
+            'off)', low=0.01, high=100.0)
         self.airborne_start_wait_s = p(
             'airborne_start_wait_s', d.airborne_start_wait_s, 'mhe: a stream that begins in '
             'the air starts on its first landing if one comes within this much data [s] (its '
@@ -210,6 +214,7 @@ class SkeletalTrackerNode(TrackerNode):
                                     landing_rate_sd_scale=landing_rate_sd_scale_for(
                                         bool(self.subject_file)),
                                     airborne_start_wait_s=self.airborne_start_wait_s,
+                                    still_rate_sd_scale=self.still_rate_sd_scale,
                                     joint_torques=self.joint_torques,
                                     angle_rate_hz=self.angle_rate_hz,
                                     wrench_rate_hz=self.wrench_rate_hz)
@@ -228,7 +233,8 @@ class SkeletalTrackerNode(TrackerNode):
             'bias_rate': self.bias_rate, 'subject_file': self.subject_file,
             'start_s': self.start_s, 'joint_torques': self.joint_torques,
             'excitation_rate_weight': self.excitation_rate_weight,
-            'landing_rate_sd_scale': self.mhe_settings.landing_rate_sd_scale}
+            'landing_rate_sd_scale': self.mhe_settings.landing_rate_sd_scale,
+            'still_rate_sd_scale': self.still_rate_sd_scale}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)

@@ -675,6 +675,9 @@ class MovingHorizonEstimator:
         w.landing_load = st.landing_load_bw * self.model.p.body_weight
         w.landing_span_s = st.landing_span_s
         w.landing_relax = st.landing_relax()
+        w.still_band = np.asarray(st.still_band_bw, dtype=float) * self.model.p.body_weight
+        w.still_span_s = st.still_span_s
+        w.still_relax = np.array([1.0, st.still_rate_sd_scale])
         if st.arrival_noise_sd is not None:
             noise = np.empty(NV)
             noise[LAYOUT['q']] = np.r_[np.radians([st.arrival_noise_sd[0]] * 4),

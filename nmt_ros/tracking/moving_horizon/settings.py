@@ -149,6 +149,32 @@ class MovingHorizonSettings:
     landing_span_s: float = 0.02
     landing_wrench_sd_scale: float = 3.0
     landing_rate_sd_scale: float = 3.0
+    # the excitations' rate prior tightened in still stance: its SD times still_rate_sd_scale
+    # in segments whose plate readings (segment means, ~9 samples) stay within still_band_bw
+    # (Fx, Fy [BW], Mz [BW m]; ~5 noise SDs of a mean) of each other over still_span_s
+    # around them (the past only at the window's open end), loaded
+    # (window.SlidingWindow.still_segments). The plate reads the body's momentum change, so
+    # a still plate is a still body. Why: quiet stance's hip error (3.2 % of peak, the
+    # truth varying by 1 N m) was the mocap noise passed into the activations at 5-10 Hz
+    # (realisation 1, 28-40 s: hip error SD 7.6 N m, 48 % of it at 5-10 Hz; 1.0 N m without
+    # the angle noise; the estimated activations with the true motion give it all, the
+    # estimated motion with the true activations 0.5 N m). A tighter rate prior everywhere
+    # costs the movements (w_du 40: quiet hip 2.8 but landings 8.3 / 8.3 / 9.5 % of peak,
+    # realisations 1-4); looser HAT / thigh angle SDs cost the flights (hip 12-14). Judged
+    # 99 % of the truth's quiet instants and 17 % of its 'moving' ones (slow stretches),
+    # no flight or landing instant (realisation 1). Realisations 1-16 of bags/routine
+    # (bench/bench_estimator_seeds.py, 2026-12-06), off -> 0.2: refined torques 2.64 /
+    # 1.99 / 3.77 -> 2.67 / 1.85 / 3.09 % of peak (quiet 1.80 / 1.39 / 3.15 -> 1.75 / 1.28
+    # / 2.05, moving 4.67 / 2.22 / 3.96 -> 4.84 / 2.21 / 3.87, flight 3.03 / 5.44 / 9.85 ->
+    # 3.18 / 5.19 / 10.13, landing 6.86 / 6.76 / 7.91 -> 6.64 / 6.05 / 7.70), low-latency
+    # hip 5.96 -> 4.54, re-initialisations 5 -> 1, jump heights 7.9 -> 6.8 % off; but the
+    # estimator's own muscle forces 6.2 -> 9.2 % F0 (quiet 4.2 -> 8.1: the co-contraction
+    # settles more slowly; not published, Stage 2's forces come from the torques). At 0.3:
+    # hip 3.22, 5 re-initialisations, jumps 8.1 %; at 0.1 (1-4): flight hip 11.7. A band of
+    # 0.02 BW or a 0.1 s span: ankle over movements worse (1-4)
+    still_band_bw: tuple[float, float, float] = (0.03, 0.03, 0.006)
+    still_span_s: float = 0.05
+    still_rate_sd_scale: float = 0.2
     # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
     # 0.1 the HAT followed the mocap noise (+-0.5 deg at 3-5 Hz, hip torque +-40 N m in
     # quiet stance); w_du 10 and w_u 50 gave the best torques on the routine (quiet stance
@@ -336,9 +362,15 @@ class MovingHorizonSettings:
         if not 0 <= self.extrapolation_velocity <= 1:
             raise ValueError(f'extrapolation_velocity {self.extrapolation_velocity} must be '
                              'in [0, 1]')
-        for name in ('landing_wrench_sd_scale', 'landing_rate_sd_scale'):
+        for name in ('landing_wrench_sd_scale', 'landing_rate_sd_scale',
+                     'still_rate_sd_scale'):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f'{name} ({getattr(self, name)}) must be positive')
+        if not (np.isfinite(self.still_span_s) and self.still_span_s >= 0):
+            raise ValueError(f'still_span_s ({self.still_span_s} s) must be 0 or more')
+        if len(self.still_band_bw) != 3 or not all(b > 0 for b in self.still_band_bw):
+            raise ValueError(f'still_band_bw {self.still_band_bw} must be three positive '
+                             'numbers (inf: off)')
         if not (np.isfinite(self.landing_span_s) and self.landing_span_s >= 0):
             raise ValueError(f'landing_span_s ({self.landing_span_s} s) must be 0 or more')
         if not 0 < self.wrench_max_cutoff_fraction < 1:

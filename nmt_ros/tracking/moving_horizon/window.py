@@ -123,6 +123,12 @@ class SlidingWindow:
         self.landing_span_s = 0.0
         self.landing_relax = np.ones(2)
         self._landings = np.zeros(0)    # landing times [s] found so far
+        # the excitations' rate prior tightened in still stance (``still_segments``): the
+        # largest deviation [3] (N, N, N m) of a segment's mean plate reading from the others
+        # within ``still_span_s`` (inf: off), and the SD multipliers there
+        self.still_band = np.full(3, np.inf)
+        self.still_span_s = 0.0
+        self.still_relax = np.ones(2)
         self._landings_of: tuple | None = None   # the data they were found in
 
     # ------------------------------------------------------------------ shape
@@ -248,6 +254,8 @@ class SlidingWindow:
         (``landings``), ones elsewhere."""
         segments = np.asarray(segments)
         out = np.ones((segments.size, 2))
+        if np.isfinite(self.still_band).all() and not np.all(self.still_relax == 1):
+            out[self.still_segments(segments)] = self.still_relax
         if not np.isfinite(self.landing_load) or np.all(self.landing_relax == 1):
             return out
         tl = self.landings()
@@ -257,6 +265,51 @@ class SlidingWindow:
             pos = np.minimum(np.searchsorted(tl, t0), tl.size - 1)
             out[(tl[pos] >= t0) & (tl[pos] <= t1)] = self.landing_relax
         return out
+
+    def still_segments(self, segments: np.ndarray) -> np.ndarray:
+        """Which ``segments`` are in still stance, from the plate alone: every segment
+        within ``still_span_s`` of it (the data so far: at the window's open end, the past
+        only) has plate samples, is loaded (mean vertical force above ``landing_load``) and
+        has a mean reading within ``still_band`` of those segments' median. The plate reads
+        the body's momentum change (the vertical and fore-aft forces its COM's acceleration,
+        the moment its rotation about the ankle), so a still plate is a still body; a
+        segment mean of ~9 samples at 1080 Hz has a third of the noise SD. A plate slower
+        than the knot rate (the real drop jump's 100 Hz) leaves segments without samples:
+        never still there. Vectorised over the segments (sliding blocks of the means)."""
+        segments = np.asarray(segments, dtype=np.int64)
+        t, y = self.wrench.t, self.wrench.y
+        ok = np.isfinite(y).all(axis=1)
+        t, y = t[ok], y[ok]
+        still = np.zeros(segments.size, bool)
+        if t.size == 0 or segments.size == 0:
+            return still
+        seg = self.grid.locate(t)[0]
+        first, last = int(seg.min()), int(seg.max())
+        n = last - first + 1
+        count = np.bincount(seg - first, minlength=n)
+        with np.errstate(invalid='ignore'):
+            means = np.column_stack([np.bincount(seg - first, y[:, k], minlength=n)
+                                     for k in range(3)]) / count[:, None]
+        # a segment without samples, or not loaded, fails every block that holds it
+        bad = (count == 0) | ~(means[:, 1] > self.landing_load)
+        means[bad] = np.inf
+        reach = int(np.ceil(self.still_span_s / self.grid.dt - 1e-9))
+        # blocks [j - reach, j + reach] over the data's segments, NaN outside them
+        padded = np.full((n + 2 * reach, 3), np.nan)
+        padded[reach:reach + n] = means
+        inside = (segments >= first) & (segments <= last)
+        at = segments[inside] - first           # block start in padded = j - first
+        blocks = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1, axis=0)[at]
+        # blocks [K, 3, 2 reach + 1]
+        present = ~np.isnan(blocks[:, 1, :])
+        candidate = (present.sum(axis=1) >= reach + 1) & ~np.isinf(blocks).any(axis=(1, 2))
+        b = blocks[candidate]
+        med = np.nanmedian(b, axis=2)
+        dev = np.nanmax(np.abs(b - med[:, :, None]), axis=2)
+        ok_block = candidate.copy()
+        ok_block[candidate] = (dev <= self.still_band[None, :]).all(axis=1)
+        still[np.flatnonzero(inside)] = ok_block
+        return still
 
     def _pack(self, samples: Samples, segments: np.ndarray, capacity: int, k: int,
               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
