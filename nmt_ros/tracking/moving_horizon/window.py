@@ -302,10 +302,15 @@ class SlidingWindow:
         blocks = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1, axis=0)[at]
         # blocks [K, 3, 2 reach + 1]
         present = ~np.isnan(blocks[:, 1, :])
-        candidate = (present.sum(axis=1) >= reach + 1) & ~np.isinf(blocks).any(axis=(1, 2))
-        b = blocks[candidate]
-        med = np.nanmedian(b, axis=2)
-        dev = np.nanmax(np.abs(b - med[:, :, None]), axis=2)
+        m = present.sum(axis=1)                                  # segments in each block
+        candidate = (m >= reach + 1) & ~np.isinf(blocks).any(axis=(1, 2))
+        b, m = blocks[candidate], m[candidate]
+        ordered = np.sort(b, axis=2)                             # NaN (outside) last
+        lo_i = ((m - 1) // 2)[:, None, None] * np.ones((1, 3, 1), dtype=np.int64)
+        hi_i = (m // 2)[:, None, None] * np.ones((1, 3, 1), dtype=np.int64)
+        med = 0.5 * (np.take_along_axis(ordered, lo_i, axis=2)
+                     + np.take_along_axis(ordered, hi_i, axis=2))        # [K, 3, 1]
+        dev = np.where(np.isnan(b), 0.0, np.abs(b - med)).max(axis=2)
         ok_block = candidate.copy()
         ok_block[candidate] = (dev <= self.still_band[None, :]).all(axis=1)
         still[np.flatnonzero(inside)] = ok_block
