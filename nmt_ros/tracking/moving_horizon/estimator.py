@@ -509,7 +509,8 @@ class MovingHorizonEstimator:
             t_old = w.grid.time(np.arange(w.first, keep_from) + 0.5)
             fy = w.values(t_old, 1)[:, 0, LAYOUT['s']][:, 1]
             airborne = bool((fy < st.contact_free_load_bw * self.model.p.body_weight).all())
-            w.drop_before(keep_from, airborne=airborne)
+            w.drop_before(keep_from, airborne=airborne and st.airborne_translation_sd_m > 0,
+                          translation_sd=st.airborne_translation_sd_m)
 
     # ------------------------------------------------------------------ outputs
     def _emit(self, t_u: float, final: bool = False,

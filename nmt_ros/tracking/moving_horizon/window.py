@@ -529,8 +529,9 @@ class SlidingWindow:
         """Marginalise the segments before ``segment`` (global) into the arrival cost; the
         plate parameters then get the drift of the time that passed. ``airborne``: nothing
         held the body to the ground over them, so where it is (a common horizontal and
-        vertical shift of the arrival control points) is free again by ``translation_sd``
-        [m]: the next landing places it."""
+        vertical shift of the arrival control points) is made uncertain by ``translation_sd``
+        [m] (the estimator's ``airborne_translation_sd_m``, off by default: a tracked
+        flight keeps its take-off's height)."""
         m = segment - self.first
         if m <= 0:
             return
