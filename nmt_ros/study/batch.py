@@ -37,6 +37,7 @@ from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
 from nmt_ros.tracking.moving_horizon.settings import (
     MovingHorizonSettings,
+    airborne_translation_sd_for,
     excitation_rate_weight_for,
     joint_torques_for,
     landing_rate_sd_scale_for,
@@ -125,7 +126,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         joint_torques=joint_torques_for(joint_torques, subject is not None),
         excitation_rate_weight=excitation_rate_weight_for(excitation_rate_weight,
                                                           subject is not None),
-        landing_rate_sd_scale=landing_rate_sd_scale_for(subject is not None))
+        landing_rate_sd_scale=landing_rate_sd_scale_for(subject is not None),
+        airborne_translation_sd_m=airborne_translation_sd_for(subject is not None))
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work
