@@ -1096,6 +1096,10 @@ def test_excitation_rate_weight_auto_is_the_lab_subjects_for_a_lab_subject_only(
     # and its excitations' rate prior is not relaxed further at landings
     from nmt_ros.tracking.moving_horizon.settings import landing_rate_sd_scale_for
     assert landing_rate_sd_scale_for(lab_subject=True) == 1.0
+    assert landing_rate_sd_scale_for(lab_subject=False) \
+        == MovingHorizonSettings().landing_rate_sd_scale > 1.0
+    with pytest.raises(ValueError, match='auto'):
+        excitation_rate_weight_for(-1.0, lab_subject=False)
     # and a flight's height is made uncertain for a lab subject only (the shipped jumper's
     # flights are its model's ballistics; the real drop jump lost control in a landing at 0)
     from nmt_ros.tracking.moving_horizon.settings import (
@@ -1104,9 +1108,5 @@ def test_excitation_rate_weight_auto_is_the_lab_subjects_for_a_lab_subject_only(
     )
     assert airborne_translation_sd_for(lab_subject=True) == LAB_AIRBORNE_TRANSLATION_SD_M > 0
     assert airborne_translation_sd_for(lab_subject=False) == 0.0
-    assert landing_rate_sd_scale_for(lab_subject=False) \
-        == MovingHorizonSettings().landing_rate_sd_scale > 1.0
-    with pytest.raises(ValueError, match='auto'):
-        excitation_rate_weight_for(-1.0, lab_subject=False)
     with pytest.raises(ValueError, match='auto'):
         excitation_rate_weight_for(float('nan'), lab_subject=True)

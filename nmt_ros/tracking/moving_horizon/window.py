@@ -524,14 +524,13 @@ class SlidingWindow:
         lin = np.concatenate([self.C[:3].ravel(), np.zeros(NX)])
         self.prior = Prior(first=self.first, n_ctrl=3, H=H, g=np.zeros(n), lin=lin)
 
-    def drop_before(self, segment: int, airborne: bool = False,
-                    translation_sd: float = 0.05) -> None:
+    def drop_before(self, segment: int, translation_sd: float = 0.0) -> None:
         """Marginalise the segments before ``segment`` (global) into the arrival cost; the
-        plate parameters then get the drift of the time that passed. ``airborne``: nothing
-        held the body to the ground over them, so where it is (a common horizontal and
-        vertical shift of the arrival control points) is made uncertain by ``translation_sd``
-        [m] (the estimator's ``airborne_translation_sd_m``, off by default: a tracked
-        flight keeps its take-off's height)."""
+        plate parameters then get the drift of the time that passed. ``translation_sd`` [m]
+        (0: none): where the body is (a common horizontal and vertical shift of the arrival
+        control points) is made that uncertain, for segments where nothing held it to the
+        ground (the estimator's ``airborne_translation_sd_m``, a lab subject's only: a
+        tracked flight keeps its take-off's height)."""
         m = segment - self.first
         if m <= 0:
             return
@@ -567,7 +566,7 @@ class SlidingWindow:
         if self.arrival_noise is not None:   # the arrival state's own process noise
             Hp, gp = diffuse(Hp, gp, np.arange(3 * NV), np.tile(self.arrival_noise, 3)
                              * m * self.grid.dt)
-        if airborne:
+        if translation_sd > 0:
             E = np.zeros((Hp.shape[0], 2))
             for k in range(3):
                 E[k * NV + 4, 0] = E[k * NV + 5, 1] = 1.0
