@@ -746,27 +746,62 @@ def test_the_still_stance_prior_steadies_the_hip_in_quiet_stance(routine, model)
 def test_a_flight_keeps_the_height_of_its_take_off(routine, model):
     """Nothing in the air says how high the body is, but the flight is ballistic from a
     take-off the window saw: the arrival cost carries that height through the flight. Made
-    uncertain by 5 cm at every update in the air (``airborne_translation_sd_m`` 0.05, the
-    behaviour until 2026-12-06) the height was lost within a few updates (bags/routine, the
-    17.0-17.4 s flight: the ankle's height 60.6 mm RMS off, measured; 14.0 with the
-    default 0)."""
+    uncertain by 0.32 m/sqrt(s) in the air (``airborne_translation_diffusion_m_sqrt_s``;
+    0.05 m at every 25 ms update, the behaviour until 2026-12-06) the height was lost within
+    a few updates (bags/routine, the 17.0-17.4 s flight: the ankle's height 60.6 mm RMS off,
+    measured; 14.0 with the default 0)."""
     obs, truth = routine
     a, b = 15.5, 20.5
     sa = (obs.t_angles >= a) & (obs.t_angles <= b)
     sw = (obs.t_wrench >= a) & (obs.t_wrench <= b)
-    assert MovingHorizonSettings().airborne_translation_sd_m == 0.0
+    assert MovingHorizonSettings().airborne_translation_diffusion_m_sqrt_s == 0.0
     rms = {}
-    for sd in (0.0, 0.05):
+    for d in (0.0, 0.32):
         run = estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw],
-                       obs.wrench[sw], MovingHorizonSettings(airborne_translation_sd_m=sd))
+                       obs.wrench[sw],
+                       MovingHorizonSettings(airborne_translation_diffusion_m_sqrt_s=d))
         ref = run.refined
         k = np.clip(np.searchsorted(truth.t, ref.t), 0, truth.t.size - 1)
         flight = np.abs(truth.s[k, 1]) < 1e-6
         assert flight.sum() > 300                  # the 0.34 s flight at 1080 Hz
-        rms[sd] = float(np.sqrt(np.mean((ref.q[flight, 5] - truth.q[k[flight], 5]) ** 2)))
-    assert rms[0.0] < 0.025 and rms[0.0] < 0.5 * rms[0.05], rms
-    with pytest.raises(ValueError, match='airborne_translation_sd_m'):
-        MovingHorizonSettings(airborne_translation_sd_m=-0.01).validate()
+        rms[d] = float(np.sqrt(np.mean((ref.q[flight, 5] - truth.q[k[flight], 5]) ** 2)))
+    assert rms[0.0] < 0.025 and rms[0.0] < 0.5 * rms[0.32], rms
+    with pytest.raises(ValueError, match='airborne_translation_diffusion_m_sqrt_s'):
+        MovingHorizonSettings(airborne_translation_diffusion_m_sqrt_s=-0.01).validate()
+
+
+def test_the_height_diffuses_per_second_not_per_update(routine, model, monkeypatch):
+    """The flight's height uncertainty is a rate: the SD added when airborne segments are
+    marginalised is the diffusion x sqrt(their span), so the variance added over a flight
+    (bags/routine's 17.0-17.4 s) is the same at 40 and at 120 updates a second (at 0.05 m
+    per update, until 2026-12-06, it was 3x larger at 120 Hz), and it is the diffusion^2
+    x the airborne span marginalised, about the flight's 0.34 s."""
+    from nmt_ros.tracking.moving_horizon import window as window_module
+
+    obs, _ = routine
+    a, b = 16.5, 17.8
+    sa = (obs.t_angles >= a) & (obs.t_angles <= b)
+    sw = (obs.t_wrench >= a) & (obs.t_wrench <= b)
+    original = window_module.SlidingWindow.drop_before
+    added = []
+
+    def recording(self, segment, translation_sd=0.0):
+        added.append(translation_sd)
+        return original(self, segment, translation_sd)
+
+    monkeypatch.setattr(window_module.SlidingWindow, 'drop_before', recording)
+    variance = {}
+    for rate in (40.0, 120.0):
+        added.clear()
+        st = MovingHorizonSettings(update_rate_hz=rate,
+                                   airborne_translation_diffusion_m_sqrt_s=0.32)
+        estimate(model, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw], obs.wrench[sw],
+                 st)
+        variance[rate] = float(np.sum(np.square(added)))
+    span = {rate: v / 0.32 ** 2 for rate, v in variance.items()}
+    # measured 0.325 and 0.358 s: at 40 Hz three segments at a time must all be airborne
+    assert 0.25 < span[40.0] < 0.4 and 0.25 < span[120.0] < 0.4, span
+    assert span[120.0] == pytest.approx(span[40.0], abs=0.05), span
 
 
 def test_a_stream_that_begins_in_the_air_starts_on_its_first_landing(routine, model):
@@ -1100,13 +1135,5 @@ def test_excitation_rate_weight_auto_is_the_lab_subjects_for_a_lab_subject_only(
         == MovingHorizonSettings().landing_rate_sd_scale > 1.0
     with pytest.raises(ValueError, match='auto'):
         excitation_rate_weight_for(-1.0, lab_subject=False)
-    # and a flight's height is made uncertain for a lab subject only (the shipped jumper's
-    # flights are its model's ballistics; the real drop jump lost control in a landing at 0)
-    from nmt_ros.tracking.moving_horizon.settings import (
-        LAB_AIRBORNE_TRANSLATION_SD_M,
-        airborne_translation_sd_for,
-    )
-    assert airborne_translation_sd_for(lab_subject=True) == LAB_AIRBORNE_TRANSLATION_SD_M > 0
-    assert airborne_translation_sd_for(lab_subject=False) == 0.0
     with pytest.raises(ValueError, match='auto'):
         excitation_rate_weight_for(float('nan'), lab_subject=True)

@@ -68,7 +68,7 @@ from nmt_ros.tracking.conditioning import ConditioningSettings
 from nmt_ros.tracking.moving_horizon.estimator import EstimateBlock, MovingHorizonEstimator
 from nmt_ros.tracking.moving_horizon.settings import (
     MovingHorizonSettings,
-    airborne_translation_sd_for,
+    airborne_translation_diffusion_for,
     excitation_rate_weight_for,
     joint_torques_for,
     landing_rate_sd_scale_for,
@@ -214,8 +214,9 @@ class SkeletalTrackerNode(TrackerNode):
                                     excitation_rate_weight=self.excitation_rate_weight,
                                     landing_rate_sd_scale=landing_rate_sd_scale_for(
                                         bool(self.subject_file)),
-                                    airborne_translation_sd_m=airborne_translation_sd_for(
-                                        bool(self.subject_file)),
+                                    airborne_translation_diffusion_m_sqrt_s=(
+                                        airborne_translation_diffusion_for(
+                                            bool(self.subject_file))),
                                     airborne_start_wait_s=self.airborne_start_wait_s,
                                     still_rate_sd_scale=self.still_rate_sd_scale,
                                     joint_torques=self.joint_torques,

@@ -37,7 +37,7 @@ from nmt_ros.study.trial_start import plan_start
 from nmt_ros.tracking.conditioning import nominal_rate, sample_rate
 from nmt_ros.tracking.moving_horizon.settings import (
     MovingHorizonSettings,
-    airborne_translation_sd_for,
+    airborne_translation_diffusion_for,
     excitation_rate_weight_for,
     joint_torques_for,
     landing_rate_sd_scale_for,
@@ -127,7 +127,8 @@ def track_bag(bag: Path, out: Path, stage2_mode: str = 'full', window: float | N
         excitation_rate_weight=excitation_rate_weight_for(excitation_rate_weight,
                                                           subject is not None),
         landing_rate_sd_scale=landing_rate_sd_scale_for(subject is not None),
-        airborne_translation_sd_m=airborne_translation_sd_for(subject is not None))
+        airborne_translation_diffusion_m_sqrt_s=airborne_translation_diffusion_for(
+            subject is not None))
     if wrench_cutoff_hz is not None:
         mhe = mhe.with_(wrench_cutoff_hz=wrench_cutoff_hz)
     mhe.validate()                 # a bad option is refused before any work

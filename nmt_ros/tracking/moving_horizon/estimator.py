@@ -506,14 +506,14 @@ class MovingHorizonEstimator:
         st, w = self.settings, self.window
         keep_from = self.grid.segment_of(t_u - st.window_s)
         if keep_from > w.first:
-            airborne = False
-            if st.airborne_translation_sd_m > 0:    # only then does it matter (a lab subject)
+            sd = 0.0
+            if st.airborne_translation_diffusion_m_sqrt_s > 0:
                 t_old = w.grid.time(np.arange(w.first, keep_from) + 0.5)
                 fy = w.values(t_old, 1)[:, 0, LAYOUT['s']][:, 1]
-                airborne = bool((fy < st.contact_free_load_bw
-                                 * self.model.p.body_weight).all())
-            w.drop_before(keep_from,
-                          translation_sd=st.airborne_translation_sd_m if airborne else 0.0)
+                if (fy < st.contact_free_load_bw * self.model.p.body_weight).all():
+                    span_s = (keep_from - w.first) / st.knot_rate_hz
+                    sd = st.airborne_translation_diffusion_m_sqrt_s * np.sqrt(span_s)
+            w.drop_before(keep_from, translation_sd=sd)
 
     # ------------------------------------------------------------------ outputs
     def _emit(self, t_u: float, final: bool = False,

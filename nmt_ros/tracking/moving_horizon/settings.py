@@ -175,21 +175,25 @@ class MovingHorizonSettings:
     still_band_bw: tuple[float, float, float] = (0.03, 0.03, 0.006)
     still_span_s: float = 0.05
     still_rate_sd_scale: float = 0.2
-    # the arrival state's translation made uncertain by this SD [m] each time airborne
-    # segments are marginalised (0: never; window.SlidingWindow.drop_before). At 0.05 (until
-    # 2026-12-06) a flight lost its height: every update in the air added 5 cm of SD, so the
-    # take-off's height was gone after a few updates and the window's 0.1 s of ballistic arc
-    # alone placed the body; bags/routine's 41.1 s flight ended with the ankle 7 cm low, the
-    # landing's contact rows then turned the foot 40-70 deg and the window lost control
-    # (41.4 s, again at 50.9 s). The flight is ballistic from a take-off the window saw, so
-    # its height is known. 0.05 -> 0: the ankle's height over the 17.0 s flight 60.6 -> 14.0
-    # mm RMS off (tests); realisations 1-16 (bench/bench_estimator_seeds.py): refined torques
-    # in flight 3.18 / 5.19 / 10.13 -> 2.98 / 5.16 / 9.79 % of peak, landing 6.64 / 6.05 /
-    # 7.70 -> 6.47 / 6.00 / 7.60, all 2.67 / 1.85 / 3.09 -> 2.63 / 1.85 / 3.05,
-    # re-initialisations 1 -> 2 (one at realisation 2's 4th take-off, its jump height -55 %:
-    # mean jump error 6.8 -> 7.4 %, unchanged on every other jump); the shipped realisation
-    # (bags/routine) 2 -> 0. A lab subject keeps 0.05 (airborne_translation_sd_for)
-    airborne_translation_sd_m: float = 0.0
+    # the arrival state's translation (where the body is) diffuses in the air: each time
+    # airborne segments are marginalised it is made uncertain by this x sqrt(their span)
+    # [m / sqrt(s)] (0: never; window.SlidingWindow.drop_before), so the same per second
+    # at any update rate (until 2026-12-06 it was an SD per update: 0.05 m, 0.32 m/sqrt(s)
+    # at 40 Hz, 0.55 at 120). At 0.32 a flight lost its height: the take-off's height was
+    # gone after a few updates and the window's 0.1 s of ballistic arc alone placed the
+    # body; bags/routine's 41.1 s flight ended with the ankle 7 cm low, the landing's
+    # contact rows then turned the foot 40-70 deg and the window lost control (41.4 s,
+    # again at 50.9 s). The shipped jumper's flight is its model's ballistics from a
+    # take-off the window saw, so its height is known: 0. 0.32 -> 0: the ankle's height over
+    # the 17.0 s flight 60.6 -> 14.0 mm RMS off (tests); realisations 1-16
+    # (bench/bench_estimator_seeds.py): refined torques in flight 3.18 / 5.19 / 10.13 ->
+    # 2.98 / 5.16 / 9.79 % of peak, landing 6.64 / 6.05 / 7.70 -> 6.47 / 6.00 / 7.60, all
+    # 2.67 / 1.85 / 3.09 -> 2.63 / 1.85 / 3.05, re-initialisations 1 -> 2; the shipped
+    # realisation 2 -> 0. A lab subject keeps 0.32 (airborne_translation_diffusion_for).
+    # One value for both, 0.063 (0.01 m per update), was measured and not kept: the real
+    # drop jump as at 0.32, but realisations 1-16 landing knee / hip 6.00 / 7.60 -> 6.82 /
+    # 8.32 (realisation 5's 50.8 s landing 42-55 % of peak off for 0.2 s)
+    airborne_translation_diffusion_m_sqrt_s: float = 0.0
     # the excitations' prior (the process noise of a muscle-driven estimator): with w_du
     # 0.1 the HAT followed the mocap noise (+-0.5 deg at 3-5 Hz, hip torque +-40 N m in
     # quiet stance); w_du 10 and w_u 50 gave the best torques on the routine (quiet stance
@@ -381,7 +385,7 @@ class MovingHorizonSettings:
                      'still_rate_sd_scale'):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f'{name} ({getattr(self, name)}) must be positive')
-        for name in ('still_span_s', 'airborne_translation_sd_m'):
+        for name in ('still_span_s', 'airborne_translation_diffusion_m_sqrt_s'):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f'{name} ({getattr(self, name)}) must be 0 or more')
         if len(self.still_band_bw) != 3 or not all(b > 0 for b in self.still_band_bw):
@@ -446,18 +450,19 @@ def joint_torques_for(choice: str, lab_subject: bool) -> str:
     return 'net' if lab_subject else 'muscle'
 
 
-#: ``MovingHorizonSettings.airborne_translation_sd_m`` for a lab recording's subject [m]. The
-#: shipped jumper's flights are the model's own ballistics, so a tracked take-off fixes the
-#: height (0). A real subject's model is scaled from mass and height: its flight's arc from
-#: the take-off is not exact, and the real drop jump (`nmt track bags/real_dropjump`,
-#: 2026-12-06) lost control in its second landing at 2.44 s with 0 (a segment angle 35 deg
-#: from the mocap), none with 0.05, which was everyone's default until then.
-LAB_AIRBORNE_TRANSLATION_SD_M = 0.05
+#: ``MovingHorizonSettings.airborne_translation_diffusion_m_sqrt_s`` for a lab recording's
+#: subject [m / sqrt(s)]. The shipped jumper's flights are the model's own ballistics, so a
+#: tracked take-off fixes the height (0). A real subject's model is scaled from mass and
+#: height: its flight's arc from the take-off is not exact, and the real drop jump (`nmt
+#: track bags/real_dropjump`, 2026-12-06) lost control in its second landing at 2.44 s with
+#: 0 (a segment angle 35 deg from the mocap), none with 0.032-0.32; 0.32 (0.05 m per 25 ms
+#: update) was everyone's value until then.
+LAB_AIRBORNE_TRANSLATION_DIFFUSION_M_SQRT_S = 0.32
 
 
-def airborne_translation_sd_for(lab_subject: bool) -> float:
-    """``MovingHorizonSettings.airborne_translation_sd_m`` for the subject:
-    :data:`LAB_AIRBORNE_TRANSLATION_SD_M` for a lab recording's subject, the settings'
-    default for the shipped jumper."""
-    return (LAB_AIRBORNE_TRANSLATION_SD_M if lab_subject
-            else MovingHorizonSettings.airborne_translation_sd_m)
+def airborne_translation_diffusion_for(lab_subject: bool) -> float:
+    """``MovingHorizonSettings.airborne_translation_diffusion_m_sqrt_s`` for the subject:
+    :data:`LAB_AIRBORNE_TRANSLATION_DIFFUSION_M_SQRT_S` for a lab recording's subject, the
+    settings' default for the shipped jumper."""
+    return (LAB_AIRBORNE_TRANSLATION_DIFFUSION_M_SQRT_S if lab_subject
+            else MovingHorizonSettings.airborne_translation_diffusion_m_sqrt_s)

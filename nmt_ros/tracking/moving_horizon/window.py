@@ -529,8 +529,8 @@ class SlidingWindow:
         plate parameters then get the drift of the time that passed. ``translation_sd`` [m]
         (0: none): where the body is (a common horizontal and vertical shift of the arrival
         control points) is made that uncertain, for segments where nothing held it to the
-        ground (the estimator's ``airborne_translation_sd_m``, a lab subject's only: a
-        tracked flight keeps its take-off's height)."""
+        ground (the estimator's ``airborne_translation_diffusion_m_sqrt_s`` over their
+        span)."""
         m = segment - self.first
         if m <= 0:
             return
