@@ -228,14 +228,23 @@ class MovingHorizonSettings:
     iterations: int = 1                # Gauss-Newton iterations per update (at most)
     check_steps: bool = False          # evaluate each step and keep it only if the cost fell
                                        # (one more kernel call per iteration)
-    # an update whose newest data stay poorly explained after its step (mean normalised
-    # residual^2 per row above rescue_cost_per_row: a landing, a take-off) gets this many
-    # more Levenberg-Marquardt iterations on the whole window, each step checked. Measured on
-    # bags/routine: restarts 10 -> 7 (0-20 s) and 17 -> 12 (20-60 s), landing torques
-    # 14.0 / 10.6 / 13.9 -> 11.2 / 7.0 / 8.6 % of peak, update p99 129 -> 54 ms (fewer
-    # cold starts); at a threshold of 5 the same restarts at 7 % more CPU, at 2 twice the CPU
+    # an update whose newest data are poorly predicted (mean normalised residual^2 per row
+    # above rescue_cost_per_row where the update linearised them, before its step: a
+    # movement, a landing, a take-off) gets this many more Levenberg-Marquardt iterations on
+    # the whole window, each step checked. Measured on bags/routine: restarts 10 -> 7 (0-20
+    # s) and 17 -> 12 (20-60 s), landing torques 14.0 / 10.6 / 13.9 -> 11.2 / 7.0 / 8.6 % of
+    # peak, update p99 129 -> 54 ms (fewer cold starts). Threshold 10 -> 5 (2026-12-06;
+    # bench/bench_estimator_seeds.py, realisations 1-16): refined torques 2.63 / 1.85 / 3.05
+    # -> 2.42 / 1.78 / 2.95 % of peak, moving 4.76 / 2.20 / 3.85 -> 4.18 / 1.95 / 3.59,
+    # flight 2.98 / 5.16 / 9.79 -> 2.78 / 4.97 / 8.91, landing 6.47 / 6.00 / 7.60 -> 6.33 /
+    # 5.93 / 8.12, the estimator's own muscle forces 9.2 -> 5.7 % F0, jump heights 7.4 ->
+    # 6.3 % off, re-initialisations 2 -> 3; 13 -> 41 % of the updates rescued on the shipped
+    # routine, CPU ~1.3x. At 3 (1-8): 4 re-initialisations, flight and landing worse. Judged
+    # after the step instead (one more kernel call on the newest rows, kept; about 1 % of
+    # the updates rescued): landing 5.94 / 5.54 / 7.93 -> 9.5 / 13.0 / 16.1 (1-8): the single step
+    # fits the newest rows but leaves the window unconverged, which the iterations fix
     rescue_iterations: int = 3
-    rescue_cost_per_row: float = 10.0
+    rescue_cost_per_row: float = 5.0
     # new control points at each update continue the angles and the ankle's position at this
     # fraction of the curve's velocity at the window's end (window.SlidingWindow.extend):
     # 16 realisations of bags/routine, re-initialisations a minute 1.25 at 1.0, 0.19 at
