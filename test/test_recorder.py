@@ -23,7 +23,7 @@ from msg_adapters.wrench import wrenches_from_arrays
 from nmt_ros.io import bags
 from nmt_ros.io.background_writer import BackgroundBagWriter
 from nmt_ros.io.bag_loop import loop_bag
-from nmt_ros.io.replay import Lateness, prefetched
+from nmt_ros.io.replay import Lateness, ReadAhead
 from nmt_ros.topics import FORCE_PLATE_WRENCH, MOCAP_SEGMENT_ANGLES, OBSERVATIONS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -204,8 +204,8 @@ def test_loop_bag_repeats_the_stream_without_a_gap(tmp_bag):
     assert (np.diff(angles) > 0).all()
 
 
-def test_prefetched_keeps_order_and_raises_where_the_reader_failed():
-    assert list(prefetched(iter(range(10_000)), batch=7, max_batches=3)) == list(range(10_000))
+def test_read_ahead_keeps_order_and_raises_where_the_reader_failed():
+    assert list(ReadAhead(iter(range(10_000)), batch=7, max_batches=3)) == list(range(10_000))
 
     def failing():
         yield from range(20)
@@ -213,9 +213,37 @@ def test_prefetched_keeps_order_and_raises_where_the_reader_failed():
 
     got = []
     with pytest.raises(OSError, match='disk gone'):
-        for x in prefetched(failing(), batch=8):
+        for x in ReadAhead(failing(), batch=8):
             got.append(x)
     assert got == list(range(20))
+
+
+def test_read_ahead_reads_before_anyone_iterates_and_stops_on_close():
+    # the replay makes it before waiting for its subscribers: the first chunks are read then
+    produced = []
+    started = threading.Event()
+
+    def items():
+        for i in range(100_000):
+            produced.append(i)
+            started.set()
+            yield i
+
+    ahead = ReadAhead(items(), batch=10, max_batches=4)
+    assert started.wait(5.0)
+    deadline = time.monotonic() + 5.0
+    while len(produced) < 40 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(produced) >= 40                 # the queue filled without a consumer...
+    time.sleep(0.2)
+    assert len(produced) <= 4 * 10 + 10 + 1    # ...and no further (bounded)
+    it = iter(ahead)
+    assert [next(it) for _ in range(25)] == list(range(25))
+    ahead.close()
+    time.sleep(0.3)
+    n = len(produced)
+    time.sleep(0.2)
+    assert len(produced) == n                  # the reader stopped
 
 
 def test_lateness_percentiles_within_a_bin():

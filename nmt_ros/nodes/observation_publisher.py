@@ -25,7 +25,7 @@ import time
 from msg_adapters.cdr_header import header_stamp_ns
 from msg_adapters.diagnostics import ERROR
 from nmt_ros.io.bags import BagError, bag_info, read_raw
-from nmt_ros.io.replay import prefetched
+from nmt_ros.io.replay import ReadAhead
 from nmt_ros.nodes.bag_player import BagPlayer
 from nmt_ros.nodes.node_base import NmtNode, data_qos
 from nmt_ros.nodes.readiness import missing_subscribers
@@ -34,6 +34,9 @@ from nmt_ros.topics import OBSERVATIONS
 
 NODE_NAME = 'observation_publisher'
 DEFAULT_BAG = Path(__file__).resolve().parents[2] / 'bags' / 'reference_jump'
+#: Niceness of the bag-reading thread (its chunks are read well ahead of the schedule, so it
+#: can wait for the trackers; the pacing and publishing thread keeps the process's priority).
+READER_NICE = 10
 
 
 def first_stamps(bag: str, topics: list[str]) -> dict[str, int]:
@@ -95,6 +98,15 @@ class ObservationPublisherNode(NmtNode):
         self._thread.start()
 
     def _replay(self) -> None:
+        messages = read_raw(self.bag, self.topics)
+        if self.duration_s > 0:
+            end_ns = min(self.first_stamps.values()) + round(self.duration_s * 1e9)
+            # (read in log-time order: stop reading at the first sample past the end)
+            messages = itertools.takewhile(
+                lambda m: header_stamp_ns(m.data) <= end_ns, messages)
+        # read ahead from now on: the first chunks are decoded while the subscribers come up,
+        # not during the trackers' cold start (io.replay.ReadAhead)
+        ahead = ReadAhead(messages, reader_nice=READER_NICE)
         try:
             if not self._wait_for_subscribers():
                 return
@@ -103,13 +115,7 @@ class ObservationPublisherNode(NmtNode):
             self.status.state = 'replaying'
             self.status.mark_active()
             self.publish_status()
-            messages = read_raw(self.bag, self.topics)
-            if self.duration_s > 0:
-                end_ns = min(self.first_stamps.values()) + round(self.duration_s * 1e9)
-                # (read in log-time order: stop reading at the first sample past the end)
-                messages = itertools.takewhile(
-                    lambda m: header_stamp_ns(m.data) <= end_ns, messages)
-            stats = self.player.play(prefetched(messages),
+            stats = self.player.play(iter(ahead),
                                      rate=self.rate,
                                      clock_hz=self.clock_hz if self.publish_clock else None,
                                      stop=self._stop, ack_timeout_s=0.0)
@@ -141,6 +147,7 @@ class ObservationPublisherNode(NmtNode):
             self.exit_code = 1
             self.publish_status()
         finally:
+            ahead.close()
             if self.exit_when_finished:
                 self.done = True
 
