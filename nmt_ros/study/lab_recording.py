@@ -473,8 +473,15 @@ def check_momentum(rec: LabRecording) -> dict:
     warnings = rec.facts.setdefault('warnings', [])
     implied = mb.implied
     if implied is None:
+        hint = next((e for e in mb.estimates if e.method == 'impulse over a supported stretch'),
+                    None)
         warnings.append('no body mass could be estimated from the recording (neither a quiet '
-                        'stance on the plates nor a contact between two flights)')
+                        'stance on the plates nor a contact between two flights)' + (
+                            '' if hint is None else
+                            f'; if the plates carry the whole body throughout '
+                            f'{hint.interval_s[0]:.2f}..{hint.interval_s[1]:.2f} s, its impulse '
+                            f'implies {hint.mass_kg:.1f} kg (give --mass '
+                            f'{hint.mass_kg:.1f})'))
     elif abs(implied.mass_kg / rec.subject.mass_kg - 1.0) > MASS_TOLERANCE:
         warnings.append(
             f'the force plates imply a body mass of {implied.mass_kg:.1f} kg '

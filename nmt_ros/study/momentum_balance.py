@@ -25,6 +25,14 @@ model's COM at the observed segment angles with its ankle at the measured ankle 
     from whole flights, not from differentiating the positions twice, and the flight fits'
     residuals say how parabolic the measured COM is.
   Quiet stance is preferred when present (a direct weighing); both are reported.
+  - *impulse over a supported stretch*, reported only (never the implied mass): over the
+    longest loaded phase of at least ``supported_min_s`` (inside the filter's edges),
+    ``m = J / (v_b - v_a + g T)`` with the COM's vertical velocities at its ends (the filtered
+    COM's derivative). Right only if the plates carry the whole body throughout (a walk over
+    the plates, a squat without a still moment: the unseen OpenCap walking2 gave 94.6 kg, the
+    same subject's drop jumps 94.1-94.5); a chair or a foot beside the plates would make it
+    low, and the planar COM's acceleration is too noisy against the force (0.3 g RMS with the
+    right mass) to tell, so it only names a mass to give with ``--mass``.
 * **Residual** ``a_y - (F_y / m - g)`` [m/s^2] after the step-off, with the mass the tracking
   uses: what the trackers will have to absorb.
 """
@@ -51,6 +59,7 @@ class BalanceSettings:
     quiet_min_s: float = 0.5            # quiet stance: window length [s]
     quiet_max_cv: float = 0.03          # ... and largest SD / mean of the vertical force
     support_fraction_g: float = 0.5     # unmeasured support: COM acceleration above -g x this
+    supported_min_s: float = 1.0        # shortest loaded stretch weighed by its impulse [s]
 
 
 @dataclass(frozen=True)
@@ -58,7 +67,8 @@ class MassEstimate:
     """A body mass implied by a recording's forces and motion."""
 
     mass_kg: float
-    method: str                    # 'quiet stance' | 'impulse between flights'
+    method: str                    # 'quiet stance' | 'impulse between flights' |
+                                   # 'impulse over a supported stretch' (reported only)
     interval_s: tuple[float, float]
     detail: dict = field(default_factory=dict)
 
@@ -294,6 +304,36 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
             mass_kg=impulse / denom, method='impulse between flights', interval_s=(td, to),
             detail={'impulse_n_s': impulse, 'v_touchdown_m_s': v_td, 'v_takeoff_m_s': v_to,
                     'contact_s': to - td, 'flight_fit_rms_m': max(fit_b[1], fit_a[1])}))
+    edge = 1.0 / float(cut_k)
+    supported = _supported_stretch(t, com[:, 1], t_w, fy, contacts, edge, rate_k, cut_k, st,
+                                   gravity)
+    if supported is not None:
+        estimates.append(supported)
     return MomentumBalance(t=t, com=com, com_acc_y=acc, force_y=force, contacts=contacts,
                            step_off_s=step_off, unmeasured_support_s=support,
-                           estimates=estimates, gravity=gravity, edge_s=1.0 / float(cut_k))
+                           estimates=estimates, gravity=gravity, edge_s=edge)
+
+
+def _supported_stretch(t: np.ndarray, com_y: np.ndarray, t_w: np.ndarray, fy: np.ndarray,
+                       contacts: list[tuple[float, float]], edge_s: float, rate_hz: float,
+                       cutoff_hz: float, st: BalanceSettings, gravity: float,
+                       ) -> MassEstimate | None:
+    """The mass the impulse over the longest loaded phase implies (module docstring; None if
+    no phase is ``supported_min_s`` long inside the filter's edges ``edge_s`` [s])."""
+    spans = [(max(a, float(t[0])) + edge_s, min(b, float(t[-1])) - edge_s) for a, b in contacts]
+    spans = [(a, b) for a, b in spans if b - a >= st.supported_min_s]
+    if not spans:
+        return None
+    a, b = max(spans, key=lambda ab: ab[1] - ab[0])
+    v = SmoothSignal(t, com_y[:, None], rate_hz, cutoff_hz)(np.array([a, b]), 1)[:, 0]
+    inside = (t_w > a) & (t_w < b)
+    tt = np.concatenate([[a], t_w[inside], [b]])
+    ff = np.concatenate([[np.interp(a, t_w, fy)], fy[inside], [np.interp(b, t_w, fy)]])
+    impulse = float(np.trapezoid(ff, tt))
+    denom = float(v[1] - v[0] + gravity * (b - a))
+    if denom <= 0:
+        return None
+    return MassEstimate(mass_kg=impulse / denom, method='impulse over a supported stretch',
+                        interval_s=(a, b), detail={'impulse_n_s': impulse,
+                                                   'v_start_m_s': float(v[0]),
+                                                   'v_end_m_s': float(v[1])})
