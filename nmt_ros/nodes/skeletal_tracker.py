@@ -238,7 +238,9 @@ class SkeletalTrackerNode(TrackerNode):
             'start_s': self.start_s, 'joint_torques': self.joint_torques,
             'excitation_rate_weight': self.excitation_rate_weight,
             'landing_rate_sd_scale': self.mhe_settings.landing_rate_sd_scale,
-            'still_rate_sd_scale': self.still_rate_sd_scale}
+            'still_rate_sd_scale': self.still_rate_sd_scale,
+            'airborne_translation_diffusion_m_sqrt_s':
+                self.mhe_settings.airborne_translation_diffusion_m_sqrt_s}
 
         # the numerical core (built before any input is accepted: the estimator's compiled
         # kernel is made or loaded here, not at the first sample)

@@ -170,7 +170,8 @@ def mhe_settings_from_status(values: Mapping[str, Any]) -> MovingHorizonSettings
     d = MovingHorizonSettings()
     floats = ('lag_s', 'window_s', 'update_rate_hz', 'wrench_cutoff_hz', 'angle_rate_hz',
               'wrench_rate_hz', 'airborne_start_wait_s', 'excitation_weight',
-              'excitation_rate_weight')
+              'excitation_rate_weight', 'landing_rate_sd_scale', 'still_rate_sd_scale',
+              'airborne_translation_diffusion_m_sqrt_s')
     return d.with_(iterations=int(_float(values, 'setting.iterations', d.iterations)),
                    joint_torques=str(values.get('setting.joint_torques', d.joint_torques)),
                    **{k: _float(values, f'setting.{k}', getattr(d, k)) for k in floats})
