@@ -240,10 +240,11 @@ def test_read_ahead_reads_before_anyone_iterates_and_stops_on_close():
     it = iter(ahead)
     assert [next(it) for _ in range(25)] == list(range(25))
     ahead.close()
-    time.sleep(0.3)
+    ahead._thread.join(timeout=10.0)
+    assert not ahead._thread.is_alive()        # the reader stopped
     n = len(produced)
-    time.sleep(0.2)
-    assert len(produced) == n                  # the reader stopped
+    time.sleep(0.1)
+    assert len(produced) == n
 
 
 def test_lateness_percentiles_within_a_bin():

@@ -230,4 +230,3 @@ class ReadAhead:
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
-

@@ -248,7 +248,8 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
     rate_k, rate_w = sample_rate(t), sample_rate(t_w)
     cut_k, _ = cutoff_for_rate(st.cutoff_hz, rate_k)
     cut_w, _ = cutoff_for_rate(min(st.cutoff_hz, float(cut_k)), rate_w)
-    acc = SmoothSignal(t, com[:, 1:2], rate_k, cut_k)(t, 2)[:, 0]
+    height = SmoothSignal(t, com[:, 1:2], rate_k, cut_k)
+    acc = height(t, 2)[:, 0]
     force = SmoothSignal(t_w, fy[:, None], rate_w, cut_w)(np.clip(t, t_w[0], t_w[-1]))[:, 0]
     contacts = loaded_phases(t_w, fy, st.contact_threshold_n, st.min_phase_s)
 
@@ -305,8 +306,7 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
             detail={'impulse_n_s': impulse, 'v_touchdown_m_s': v_td, 'v_takeoff_m_s': v_to,
                     'contact_s': to - td, 'flight_fit_rms_m': max(fit_b[1], fit_a[1])}))
     edge = 1.0 / float(cut_k)
-    supported = _supported_stretch(t, com[:, 1], t_w, fy, contacts, edge, rate_k, cut_k, st,
-                                   gravity)
+    supported = _supported_stretch(height, t_w, fy, contacts, edge, st, gravity)
     if supported is not None:
         estimates.append(supported)
     return MomentumBalance(t=t, com=com, com_acc_y=acc, force_y=force, contacts=contacts,
@@ -314,18 +314,19 @@ def balance_from_com(t: np.ndarray, com: np.ndarray, t_wrench: np.ndarray, fy: n
                            estimates=estimates, gravity=gravity, edge_s=edge)
 
 
-def _supported_stretch(t: np.ndarray, com_y: np.ndarray, t_w: np.ndarray, fy: np.ndarray,
-                       contacts: list[tuple[float, float]], edge_s: float, rate_hz: float,
-                       cutoff_hz: float, st: BalanceSettings, gravity: float,
-                       ) -> MassEstimate | None:
+def _supported_stretch(height: SmoothSignal, t_w: np.ndarray, fy: np.ndarray,
+                       contacts: list[tuple[float, float]], edge_s: float, st: BalanceSettings,
+                       gravity: float) -> MassEstimate | None:
     """The mass the impulse over the longest loaded phase implies (module docstring; None if
-    no phase is ``supported_min_s`` long inside the filter's edges ``edge_s`` [s])."""
-    spans = [(max(a, float(t[0])) + edge_s, min(b, float(t[-1])) - edge_s) for a, b in contacts]
+    no phase is ``supported_min_s`` long inside the filter's edges ``edge_s`` [s]); ``height``
+    is the COM's filtered height [m]."""
+    t0, t1 = float(height.t[0]), float(height.t[-1])
+    spans = [(max(a, t0) + edge_s, min(b, t1) - edge_s) for a, b in contacts]
     spans = [(a, b) for a, b in spans if b - a >= st.supported_min_s]
     if not spans:
         return None
     a, b = max(spans, key=lambda ab: ab[1] - ab[0])
-    v = SmoothSignal(t, com_y[:, None], rate_hz, cutoff_hz)(np.array([a, b]), 1)[:, 0]
+    v = height(np.array([a, b]), 1)[:, 0]
     inside = (t_w > a) & (t_w < b)
     tt = np.concatenate([[a], t_w[inside], [b]])
     ff = np.concatenate([[np.interp(a, t_w, fy)], fy[inside], [np.interp(b, t_w, fy)]])

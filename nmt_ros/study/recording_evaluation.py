@@ -20,7 +20,7 @@ From a bag recorded by the ``recorder`` node while the graph processed a trial:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 import math
 import os
 from pathlib import Path
@@ -168,10 +168,9 @@ def mhe_settings_from_status(values: Mapping[str, Any]) -> MovingHorizonSettings
     from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
     d = MovingHorizonSettings()
-    floats = ('lag_s', 'window_s', 'update_rate_hz', 'wrench_cutoff_hz', 'angle_rate_hz',
-              'wrench_rate_hz', 'airborne_start_wait_s', 'excitation_weight',
-              'excitation_rate_weight', 'landing_rate_sd_scale', 'still_rate_sd_scale',
-              'airborne_translation_diffusion_m_sqrt_s')
+    # every float setting the node reported (a hand-kept list of them had missed two a
+    # lab subject's file sets: the batch reference then ran on the jumper's)
+    floats = [f.name for f in fields(d) if isinstance(getattr(d, f.name), float)]
     return d.with_(iterations=int(_float(values, 'setting.iterations', d.iterations)),
                    joint_torques=str(values.get('setting.joint_torques', d.joint_torques)),
                    **{k: _float(values, f'setting.{k}', getattr(d, k)) for k in floats})
