@@ -219,6 +219,38 @@ def test_marker_gap_repaired_and_reported(tmp_path: Path, trial: dict, subject: 
         recording.import_markers(markers, trial['ta'], loads, _map(), subject)
 
 
+def test_a_repeated_last_row_is_dropped_and_reported(tmp_path: Path, trial: dict,
+                                                     subject: object) -> None:
+    """OpenSim's tools sometimes write their last row twice (its last digit may differ, as
+    in OpenSim's own CMC test kinematics): the same sample, dropped and reported; a time
+    repeated with other values, or rows not uniformly spaced, are errors naming the file."""
+    labels = [f'ground_force_1_{q}{a}' for q in 'vpm' for a in 'xyz']
+    rows = np.hstack(trial['loads'][0])
+    clean = write_table(tmp_path / 'clean.mot', trial['ta'], labels, rows)
+    last = rows[-1] * (1.0 + 1e-11)
+    twice = write_table(tmp_path / 'twice.mot', np.append(trial['ta'], trial['ta'][-1]),
+                        labels, np.vstack([rows, last]))
+    markers = read_trc(write_trc(tmp_path / 'm.trc', trial['t'], trial['names'], trial['xyz']))
+    a = recording.import_trc(tmp_path / 'm.trc', clean, _map(), subject)
+    b = recording.import_trc(tmp_path / 'm.trc', twice, _map(), subject)
+    np.testing.assert_array_equal(a.t_wrench, b.t_wrench)
+    np.testing.assert_array_equal(a.wrench, b.wrench)
+    assert a.facts['repairs'] == []
+    assert b.facts['repairs'] == [{'what': 'twice.mot: row repeated exactly',
+                                   't_start_s': trial['ta'][-1], 't_end_s': trial['ta'][-1],
+                                   'samples': 1, 'how': 'dropped'}]
+    other = write_table(tmp_path / 'other.mot', np.append(trial['ta'], trial['ta'][-1]),
+                        labels, np.vstack([rows, rows[-1] + 1.0]))
+    with pytest.raises(ValueError, match=rf'other.mot: time does not increase at data row '
+                       rf'{trial["ta"].size + 1}'):
+        read_plates(other)
+    uneven = trial['ta'].copy()
+    uneven[10:] += 0.4 * (uneven[1] - uneven[0])
+    loads = [GroundLoad(*ld) for ld in trial['loads']]
+    with pytest.raises(ValueError, match='^forces: samples must be uniformly '):
+        recording.import_markers(markers, uneven, loads, _map(), subject)
+
+
 def test_bad_inputs_give_clear_errors(tmp_path: Path, trial: dict, subject: object) -> None:
     # a plate channel absent from the C3D
     with pytest.raises(ValueError, match='plate channel is absent'):

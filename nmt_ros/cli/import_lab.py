@@ -87,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
         print(f'nmt import-lab: error: {err}', file=sys.stderr)
         return 2
     for r in rec.facts.get('repairs', []):
-        print(f'repaired: {r["what"]} gap {r["t_start_s"]:.3f}..{r["t_end_s"]:.3f} s '
-              f'({r["samples"]} samples, cubic spline)')
+        how = r.get('how', 'cubic spline')
+        print(f'repaired: {r["what"]}{" gap" if how == "cubic spline" else ""} '
+              f'{r["t_start_s"]:.3f}..{r["t_end_s"]:.3f} s ({r["samples"]} samples, {how})')
     print(lab.summary_json(rec))
     mb = rec.facts.get('momentum_balance', {})
     if mb.get('implied_mass_kg') is not None:

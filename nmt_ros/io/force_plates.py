@@ -10,15 +10,21 @@ import re
 
 import numpy as np
 
-from nmt_ros.io.opensim_files import GroundLoad, read_external_loads_xml, read_table
+from nmt_ros.io.opensim_files import (
+    GroundLoad,
+    read_external_loads_xml,
+    read_table,
+    without_repeated_rows,
+)
 
 #: A plate's point of application farther than this from the lab origin means wrong units [m].
 MAX_POINT_M = 20.0
 
 
 def read_plates(grf: str | os.PathLike, external_loads: str | os.PathLike | None = None,
-                ) -> tuple[np.ndarray, list[GroundLoad], list[str]]:
-    """(time [n], one GroundLoad per plate (ground frame, N / m / N m), plate names).
+                ) -> tuple[np.ndarray, list[GroundLoad], list[str], list[float]]:
+    """(time [n], one GroundLoad per plate (ground frame, N / m / N m), plate names, the
+    times [s] of rows dropped because they repeated the row before exactly).
 
     With ``external_loads`` its ExternalForces name the columns (force and point expressed in
     ground); without, every ``<prefix>_vx/vy/vz`` triple is a plate, with its point
@@ -26,7 +32,7 @@ def read_plates(grf: str | os.PathLike, external_loads: str | os.PathLike | None
     ``torque`` in the prefix). Missing columns, NaN samples and points of application too far
     for metres are refused.
     """
-    table = read_table(grf)
+    table, repeated = without_repeated_rows(read_table(grf))
     labels = set(table.labels)
     specs: list[tuple[str, str, str, str]] = []      # name, force, point, torque identifiers
     if external_loads is not None:
@@ -70,4 +76,4 @@ def read_plates(grf: str | os.PathLike, external_loads: str | os.PathLike | None
                              '(OpenSim GRF files are N, m, N m)')
         loads.append(GroundLoad(force, point, torque))
         names.append(name)
-    return table.time, loads, names
+    return table.time, loads, names, repeated

@@ -23,7 +23,7 @@ point: ``torque_z = M_O - (P_x F_y - P_y F_x)`` with ``M_O`` the moment about th
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -112,6 +112,37 @@ def read_table(path: str | Path) -> OpenSimTable:
                          'of data')
     return OpenSimTable(time=values[:, 0].copy(), labels=tuple(labels[1:]),
                         data=values[:, 1:].copy(), metadata=metadata, name=name, path=path)
+
+
+#: Values of two rows at the same time that differ by at most this fraction are one sample.
+REPEATED_ROW_RTOL = 1e-9
+
+
+def without_repeated_rows(table: OpenSimTable) -> tuple[OpenSimTable, list[float]]:
+    """(the table without the rows that repeat the row before them, the same time and the
+    same values to 1e-9 of each value (the last printed digits); the times [s] of the rows
+    dropped). OpenSim's tools sometimes write their last row twice, and OpenSim's own
+    TimeSeriesTable then refuses the file. Any other time that does not increase is a
+    ValueError naming the row: which of two different rows is right cannot be told."""
+    t = table.time
+    if t.size < 2:
+        return table, []
+    step = np.diff(t)
+    a, b = table.data[1:], table.data[:-1]
+    close = np.abs(a - b) <= REPEATED_ROW_RTOL * np.maximum(1.0, np.abs(b))
+    same = (step == 0) & np.all(close | (np.isnan(a) & np.isnan(b)), axis=1)
+    bad = np.flatnonzero((step <= 0) & ~same)
+    if bad.size:
+        k = int(bad[0]) + 1
+        where = f'{table.path}: ' if table.path is not None else ''
+        raise ValueError(f'{where}time does not increase at data row {k + 1} '
+                         f'(t = {t[k]:.6f} s after {t[k - 1]:.6f} s) and the row differs from '
+                         f'the one before; {bad.size} such row(s)')
+    if not same.any():
+        return table, []
+    keep = np.concatenate([[True], ~same])
+    clean = replace(table, time=t[keep], data=table.data[keep])
+    return clean, t[1:][same].tolist()
 
 
 def _format_rows(values: np.ndarray) -> list[str]:

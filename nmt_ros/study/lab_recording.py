@@ -25,19 +25,26 @@ import hashlib
 import json
 import os
 from pathlib import Path
+import tempfile
 
 import numpy as np
 
 from nmt_ros import topics
 from nmt_ros.io.force_plates import read_plates
 from nmt_ros.io.marker_map import LEG_LANDMARKS, LEG_LINES, SIDES, landmark, markers_used
-from nmt_ros.io.opensim_files import GroundLoad
+from nmt_ros.io.opensim_files import (
+    GroundLoad,
+    read_table,
+    without_repeated_rows,
+    write_table,
+)
 from nmt_ros.io.trc import MarkerTable, read_trc
 from nmt_ros.model.parameters import SEGMENTS, load_parameters
 from nmt_ros.model.subject import Subject, SubjectScale, scale_factors, scale_parameters
 from nmt_ros.records import Observations
 from nmt_ros.study import sagittal
 from nmt_ros.study.sagittal import SagittalFrame
+from nmt_ros.tracking.conditioning import sample_rate
 
 #: Largest marker gap filled by interpolation [s] unless told otherwise.
 MAX_GAP_S = 0.1
@@ -61,6 +68,20 @@ class LabRecording:
 def file_fact(path: str | os.PathLike) -> dict:
     p = Path(path)
     return {'file': p.name, 'sha256': hashlib.sha256(p.read_bytes()).hexdigest()}
+
+
+def _repeated_rows(path: str | os.PathLike, times_s: list[float]) -> list[dict]:
+    """Repair records of the rows a file repeated exactly (``without_repeated_rows``)."""
+    return [{'what': f'{Path(path).name}: row repeated exactly', 't_start_s': t,
+             't_end_s': t, 'samples': 1, 'how': 'dropped'} for t in times_s]
+
+
+def _check_uniform(t: np.ndarray, what: str) -> None:
+    """ValueError naming ``what`` unless the sample times t [s] are uniformly spaced."""
+    try:
+        sample_rate(t)
+    except ValueError as err:
+        raise ValueError(f'{what}: {err}') from None
 
 
 def _rate(t: np.ndarray) -> float:
@@ -95,6 +116,11 @@ def _assemble(t_kin: np.ndarray, side_angles: dict[str, np.ndarray], hat: np.nda
               frame: SagittalFrame, subject: Subject, scale: SubjectScale | None,
               facts: dict) -> LabRecording:
     """Combine legs, sum plates about the planar foot COM, pack a LabRecording."""
+    sources = facts.get('sources', {})
+    for t, keys, stream in ((t_kin, ('ik', 'trc', 'c3d'), 'motion'),
+                            (t_force, ('grf', 'c3d'), 'forces')):
+        name = next((sources[k]['file'] for k in keys if k in sources), stream)
+        _check_uniform(t, stream if name == stream else f'{name} ({stream})')
     combined, lr_rms = {}, {}
     for k, seg in enumerate(('foot', 'shank', 'thigh')):
         combined[seg], lr_rms[seg] = sagittal.combine_legs(side_angles['r'][:, k],
@@ -162,7 +188,13 @@ def import_ik(ik: str | os.PathLike, grf: str | os.PathLike, model: str | os.Pat
     """IK .mot + GRF .mot on the subject's .osim (module docstring)."""
     from nmt_ros.osim.subject_process import ik_landmarks
     frame = frame or SagittalFrame('+x', '+y')
-    lm = ik_landmarks(model, ik)
+    table, repeated = without_repeated_rows(read_table(ik))
+    with tempfile.TemporaryDirectory() as tmp:
+        posed = ik
+        if repeated:    # OpenSim refuses a file with a repeated row: pose a copy without
+            posed = write_table(Path(tmp) / Path(ik).name, table.time, table.labels,
+                                table.data, in_degrees=table.in_degrees, name=table.name)
+        lm = ik_landmarks(model, posed)
     t = lm['time']
     if t.size < 4 or np.any(np.diff(t) <= 0):
         raise ValueError(f'{ik}: time must increase over at least 4 rows')
@@ -171,8 +203,9 @@ def import_ik(ik: str | os.PathLike, grf: str | os.PathLike, model: str | os.Pat
                            frame.project(lm[f'{s}_mtp']), frame.project(lm[f'{s}_hip']),
                            frame.project(lm[f'{s}_ankle']), str(ik))
     sides, hat, ankle = ik_segment_angles(lm, frame)
-    t_f, loads, names = read_plates(grf, external_loads)
+    t_f, loads, names, grf_repeated = read_plates(grf, external_loads)
     facts = {'route': 'ik', 'plates': names,
+             'repairs': _repeated_rows(ik, repeated) + _repeated_rows(grf, grf_repeated),
              'sources': {'ik': file_fact(ik), 'grf': file_fact(grf), 'model': file_fact(model),
                          **({'external_loads': file_fact(external_loads)}
                             if external_loads else {})},
@@ -227,7 +260,7 @@ def import_markers(markers: MarkerTable, t_force: np.ndarray, loads: list[Ground
     info.update({'marker_map': {'name': marker_map.get('name', ''),
                                 'file': Path(marker_map.get('source_file', '')).name,
                                 'calibrated_on': marker_map.get('calibrated_on', '')},
-                 'repairs': repairs, 'max_gap_s': max_gap_s})
+                 'repairs': [*info.get('repairs', []), *repairs], 'max_gap_s': max_gap_s})
     return _assemble(markers.time, sides, hat, ankle, t_force, loads, frame, subject, None,
                      info)
 
@@ -238,8 +271,8 @@ def import_trc(trc: str | os.PathLike, grf: str | os.PathLike, marker_map: dict,
                ) -> LabRecording:
     """TRC markers + OpenSim GRF .mot."""
     markers = read_trc(trc)
-    t_f, loads, names = read_plates(grf, external_loads)
-    facts = {'route': 'trc', 'plates': names,
+    t_f, loads, names, grf_repeated = read_plates(grf, external_loads)
+    facts = {'route': 'trc', 'plates': names, 'repairs': _repeated_rows(grf, grf_repeated),
              'sources': {'trc': file_fact(trc), 'grf': file_fact(grf),
                          **({'external_loads': file_fact(external_loads)}
                             if external_loads else {})}}
@@ -255,13 +288,15 @@ def import_c3d(c3d: str | os.PathLike, marker_map: dict, subject: Subject,
     from nmt_ros.io.c3d import read_c3d
     markers, t_f, loads, c3d_facts = read_c3d(c3d)
     sources = {'c3d': file_fact(c3d)}
+    repairs: list[dict] = []
     names = [f'plate {k + 1}' for k in range(len(loads))]
     if grf is not None:
-        t_f, loads, names = read_plates(grf, external_loads)
+        t_f, loads, names, grf_repeated = read_plates(grf, external_loads)
         sources['grf'] = file_fact(grf)
+        repairs = _repeated_rows(grf, grf_repeated)
     elif not loads:
         raise ValueError(f'{c3d}: no force plates (FORCE_PLATFORM group); give --grf')
-    facts = {'route': 'c3d', 'plates': names, 'sources': sources,
+    facts = {'route': 'c3d', 'plates': names, 'sources': sources, 'repairs': repairs,
              'c3d': {k: v for k, v in c3d_facts.items() if k != 'plates'}}
     return import_markers(markers, t_f, loads, marker_map, subject, frame, max_gap_s, facts)
 
