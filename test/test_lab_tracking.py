@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from nmt_ros.io.opensim_files import read_table
 from nmt_ros.io.trial_bag import read_observations, write_trial_bag
 from nmt_ros.model.simulation import steps_per_sample
 from nmt_ros.records import Observations
+from nmt_ros.study.lab_recording import with_implied_mass
 from nmt_ros.study.momentum_balance import BalanceSettings, balance_from_com, loaded_phases
 from nmt_ros.tracking.conditioning import condition, cutoff_for_rate, nominal_rate
 
@@ -131,7 +133,14 @@ def test_a_walk_on_the_plates_names_the_mass_its_impulse_implies_but_does_not_im
     a, b = est.interval_s
     assert a == pytest.approx(mb.edge_s) and b == pytest.approx(1.5 - mb.edge_s)
     assert est.detail['v_start_m_s'] == pytest.approx(0.03 * w * np.cos(w * a), abs=0.02)
-    assert mb.report(mass)['implied_mass_kg'] is None
+    report = mb.report(mass)
+    assert report['implied_mass_kg'] is None
+    # `--mass implied` on such a recording is an error that names the mass to give
+    hint, = [e['mass_kg'] for e in report['estimates']
+             if e['method'] == 'impulse over a supported stretch']
+    with pytest.raises(ValueError, match=rf'implies no body mass .* give --mass KG; .*implies '
+                       rf'{hint:.1f} kg \(give --mass {hint:.1f}\)'):
+        with_implied_mass(SimpleNamespace(facts={'momentum_balance': report}))
     # shorter than supported_min_s inside the edges: not weighed
     short = balance_from_com(t, com, tw, fy, G, BalanceSettings(supported_min_s=1.4))
     assert not [e for e in short.estimates if e.method == 'impulse over a supported stretch']

@@ -400,6 +400,18 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
     return rec
 
 
+def _supported_stretch_hint(estimates: list[dict]) -> str:
+    """'; if the plates carry ...' naming the mass the impulse over the longest supported
+    stretch implies (``momentum_balance``, reported, never imposed), or '' without one."""
+    hint = next((e for e in estimates if e['method'] == 'impulse over a supported stretch'),
+                None)
+    if hint is None:
+        return ''
+    (a, b), m = hint['interval_s'], hint['mass_kg']
+    return (f'; if the plates carry the whole body throughout {a:.2f}..{b:.2f} s, its impulse '
+            f'implies {m:.1f} kg (give --mass {m:.1f})')
+
+
 def with_implied_mass(rec: LabRecording) -> LabRecording:
     """The recording with its subject weighed by its own force plates: every segment mass
     scaled to the body mass the momentum balance implies (``check_momentum``; the segment
@@ -410,7 +422,8 @@ def with_implied_mass(rec: LabRecording) -> LabRecording:
     if mass is None:
         raise ValueError('--mass implied: the recording implies no body mass (neither a quiet '
                          'stance on the plates nor a contact between two flights); give '
-                         '--mass KG')
+                         '--mass KG' + _supported_stretch_hint(rec.facts.get(
+                             'momentum_balance', {}).get('estimates', [])))
     subject = subject_with_mass(rec.subject, float(mass))
     subject = replace(subject, source=f'{subject.source} (the mass the force plates imply)')
     said = ('no body mass could be estimated', 'the force plates imply a body mass',
@@ -508,15 +521,9 @@ def check_momentum(rec: LabRecording) -> dict:
     warnings = rec.facts.setdefault('warnings', [])
     implied = mb.implied
     if implied is None:
-        hint = next((e for e in mb.estimates if e.method == 'impulse over a supported stretch'),
-                    None)
         warnings.append('no body mass could be estimated from the recording (neither a quiet '
-                        'stance on the plates nor a contact between two flights)' + (
-                            '' if hint is None else
-                            f'; if the plates carry the whole body throughout '
-                            f'{hint.interval_s[0]:.2f}..{hint.interval_s[1]:.2f} s, its impulse '
-                            f'implies {hint.mass_kg:.1f} kg (give --mass '
-                            f'{hint.mass_kg:.1f})'))
+                        'stance on the plates nor a contact between two flights)'
+                        + _supported_stretch_hint(report['estimates']))
     elif abs(implied.mass_kg / rec.subject.mass_kg - 1.0) > MASS_TOLERANCE:
         warnings.append(
             f'the force plates imply a body mass of {implied.mass_kg:.1f} kg '
