@@ -295,3 +295,35 @@ def test_shipped_faults_are_where_their_topics_say() -> None:
     assert np.abs(drift[flight, 1]).max() > 0.002 * BW
     assert np.abs(np.diff(drift[:, 1])).max() < 0.001 * BW         # slow
     assert 0.15 * BW < np.abs(spikes).max() < 0.55 * BW
+
+
+def test_a_plan_that_fails_from_the_last_plan_is_solved_again_from_the_default_guess() -> None:
+    """Seed 8's fourth landing (a 9 cm jump after a 20 cm one) was infeasible from the last
+    landing's plan and the routine died; a failed warm start now starts again from the
+    planner's own guess, both solves counted in the cycle's CPU and iterations."""
+    from nmt_ros.study.jump_planning import Plan
+    from nmt_ros.study.routine import Cycle, RoutineBuilder
+
+    def plan(success: bool, iterations: int) -> Plan:
+        z = np.zeros(2)
+        return Plan('landing', z, z, z, z, z, success, 'Solve_Succeeded' if success else
+                    'Infeasible_Problem_Detected', iterations, 1.0)
+
+    last = plan(True, 10)
+    calls = []
+
+    def solve(guess: Plan | None = None) -> Plan:
+        calls.append(guess)
+        return plan(guess is None, 30 if guess is None else 900)
+
+    builder = RoutineBuilder.__new__(RoutineBuilder)
+    builder.templates, builder.cpu, builder.say = {'landing': last}, {'plan': 0.0}, print
+    cycle = Cycle(kind='cmj', target_height_m=0.09, start_s=0.0)
+    got = builder._plan(solve, 'landing', 'landing', cycle)
+    assert calls == [last, None] and got.success
+    assert builder.templates['landing'] is got
+    assert (cycle.plan_iterations, cycle.plan_cpu_s, builder.cpu['plan']) == (930, 2.0, 2.0)
+    # nothing to fall back to: the failure is an error
+    builder.templates = {}
+    with pytest.raises(RuntimeError, match='landing plan did not converge'):
+        builder._plan(lambda guess=None: plan(False, 5), 'landing', 'landing', cycle)
