@@ -115,6 +115,28 @@ def test_quiet_stance_weighs_the_subject():
     assert mb.step_off_s is None                     # it starts loaded: nothing unmeasured
 
 
+def test_unloaded_stretches_where_the_body_does_not_fall_are_not_flights():
+    """A sit-to-stand seen by the plates: the feet unload while the body rests on a chair
+    (the COM still), between loaded stretches. Taken for flights, Subject4's STS1 implied
+    47 kg for a 62.6 kg subject; a gap is a flight only if the COM falls freely there."""
+    rng = np.random.default_rng(3)
+    mass, rate = 70.0, 100.0
+    t = np.arange(0, 401) / rate
+    tw = np.arange(0, 4001) / 1000.0
+    seated = ((tw > 1.0) & (tw < 1.4)) | ((tw > 2.6) & (tw < 3.0))
+    fy = np.where(seated, 0.0, mass * G) + rng.normal(0, 0.02 * mass * G, tw.size)
+    com = np.column_stack([np.zeros_like(t), 0.9 + 0.001 * rng.normal(size=t.size)])
+    mb = balance_from_com(t, com, tw, fy, G)
+    assert len(mb.contacts) == 3
+    assert not [e for e in mb.estimates if e.method == 'impulse between flights']
+    # the same stretches as real flights (the COM on parabolas of -g) are weighed
+    h = 0.9 + np.where((t > 1.0) & (t < 1.4), 0.5 * G * (t - 1.0) * (1.4 - t), 0.0) \
+        + np.where((t > 2.6) & (t < 3.0), 0.5 * G * (t - 2.6) * (3.0 - t), 0.0)
+    flights = balance_from_com(t, np.column_stack([np.zeros_like(t), h]), tw, fy, G)
+    est, = [e for e in flights.estimates if e.method == 'impulse between flights']
+    assert all(abs(a + G) < 0.5 for a in est.detail['flight_acc_m_s2'])
+
+
 def test_a_walk_on_the_plates_names_the_mass_its_impulse_implies_but_does_not_impose_it():
     """1.5 s always loaded, the COM bobbing 3 cm at 1.8 Hz (a walk over the plates; 2 % BW
     force noise): no quiet stance, no flight, so no implied mass; the impulse over the

@@ -4,6 +4,7 @@ OpenSim runs in subprocesses only (``python -m nmt_ros.osim.subject``).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 import json
 from pathlib import Path
 import subprocess
@@ -15,8 +16,11 @@ import pytest
 from nmt_ros.model.jumper import JumperModel, default_model
 from nmt_ros.model.parameters import MUSCLES, SEGMENTS, load_parameters
 from nmt_ros.model.subject import (
+    REACH_MARGIN_RAD,
+    REACH_WALL_N_M_PER_KG,
     load_rules,
     load_subject_model,
+    reached_joint_ranges,
     read_subject,
     scale_factors,
     scale_parameters,
@@ -322,6 +326,11 @@ def test_subject_passive_limits_start_at_its_models_clamped_ranges() -> None:
     assert subject.theta_upper[1] == pytest.approx(-knee_lo)              # 0: no hyperextension
     assert subject.theta_lower[2] == pytest.approx(hip_lo)               # -30 deg, not -40
     assert subject.theta_upper[1] < jumper.theta_upper[1]
+    # the recording reaches 33.9 deg of dorsiflexion and 120 deg of hip flexion, past the
+    # jumper's onsets (29.8, 104) but not through them: those limits would carry 0.8 and 0.2
+    # N m/kg there, so they stay (test_passive_limits_a_recording_goes_through_move_out)
+    assert np.degrees(scale.reached_range_rad['ankle_angle'][1]) == pytest.approx(33.9, abs=0.05)
+    assert np.degrees(scale.reached_range_rad['hip_flexion'][1]) > 115
     for j, (lo, hi) in ((0, (jumper.theta_lower[0], jumper.theta_upper[0])),
                         (1, (jumper.theta_lower[1], None)), (2, (None, jumper.theta_upper[2]))):
         if lo is not None:
@@ -337,3 +346,49 @@ def test_subject_passive_limits_start_at_its_models_clamped_ranges() -> None:
     knee_subject = float(np.asarray(model.passive_torques(q, np.zeros(6))).ravel()[1])
     knee_jumper = float(np.asarray(default_model().passive_torques(q, np.zeros(6))).ravel()[1])
     assert knee_subject < -50.0 and -5.0 < knee_jumper < 0.0, (knee_subject, knee_jumper)
+
+
+def test_passive_limits_a_recording_goes_through_move_out(tmp_path: Path) -> None:
+    """Joint angles a recording reaches (its 0.5th / 99.5th percentiles, so one stray frame
+    does not count) move a passive limit's onset out to REACH_MARGIN_RAD past them where the
+    limit would carry more than REACH_WALL_N_M_PER_KG there (the dorsiflexion wall at 45 deg:
+    tens of kN m); a limit passed by a little (that wall at 33 deg: 0.6 N m/kg) or a soft one
+    (hip flexion at 125 deg: 0.4 N m/kg) stays, as does every limit the recording stays inside."""
+    deg = np.deg2rad
+    n = 1000
+    jumper = load_parameters()
+    subject = subject_from_mass_height(jumper.total_mass, 1.80)
+
+    def passive(ankle_max_deg: float, hip_max_deg: float) -> tuple[dict, object]:
+        ankle = deg(np.linspace(0, ankle_max_deg, n))
+        knee = deg(np.linspace(-100, -5, n))
+        hip = deg(np.linspace(10, hip_max_deg, n))
+        hat = np.zeros(n)
+        thigh = hat + hip
+        shank = thigh + knee
+        theta = np.column_stack([shank + ankle, shank, thigh, hat])
+        theta[500, 0] += deg(40)                    # a spike: ankle +40 deg in one frame
+        theta[600, 1] = np.nan                      # an occluded frame is left out
+        reached = reached_joint_ranges(theta)
+        scale = replace(scale_factors(subject), reached_range_rad=reached)
+        return reached, scale
+
+    reached, scale = passive(45.0, 125.0)
+    assert np.degrees(reached['ankle_angle'][1]) == pytest.approx(45, abs=1.0)   # 99.5th pct
+    assert np.degrees(reached['hip_flexion'][1]) == pytest.approx(125, abs=1.0)
+    p = scale_parameters(jumper, scale).passive
+    assert p.theta_upper[0] == pytest.approx(reached['ankle_angle'][1] + REACH_MARGIN_RAD)
+    assert p.theta_upper[2] == jumper.passive.theta_upper[2]    # soft: hip flexion stays
+    np.testing.assert_array_equal(p.theta_lower, jumper.passive.theta_lower)   # inside
+    assert p.theta_upper[1] == jumper.passive.theta_upper[1]
+    # the walls' torques at the angles reached, two legs, against the threshold
+    wall = REACH_WALL_N_M_PER_KG * jumper.total_mass
+    k = jumper.passive.k
+    over = reached['ankle_angle'][1] - jumper.passive.theta_upper[0]
+    assert 2 * abs(k[0, 0]) * np.exp(k[0, 1] * over) > 100 * wall
+    _, scale = passive(33.0, 125.0)                 # the same wall passed by 3 deg: stays
+    np.testing.assert_array_equal(scale_parameters(jumper, scale).passive.theta_upper,
+                                  jumper.passive.theta_upper)
+    # the subject file keeps them
+    _, back = read_subject(write_subject(tmp_path / 'subject.yaml', subject, scale))
+    assert back.reached_range_rad == scale.reached_range_rad

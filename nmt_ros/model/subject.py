@@ -32,6 +32,11 @@ A :class:`Subject` holds what is measured of a person (from a scaled OpenSim mod
   lab's IK gives never leave that range (OpenCap's knee stops at 0 deg, the jumper's
   passive knee only at 7.4 deg of hyperextension): without it the real drop jump's estimate
   hyperextended the knee 10-15 deg after the take-off, where the IK's knee stopped at 0.
+  And the other way: where a recording reaches so far past a passive limit that the limit
+  would carry more than 2 N m/kg there (Subject4's 50 deg of dorsiflexion against the
+  jumper's 30-deg wall), that limit's onset moves out to the angles reached
+  (``SubjectScale.reached_range_rad``, :func:`reached_joint_ranges`,
+  :data:`REACH_WALL_N_M_PER_KG`).
 
 A bag of a lab recording stores its subject as ``BAG/subject.yaml`` (:func:`write_subject`);
 :func:`load_subject_model` builds the :class:`~nmt_ros.model.jumper.JumperModel` of a bag (the
@@ -103,6 +108,11 @@ class SubjectScale:
     # JOINT_COORDINATES name: {name: (lower, upper)}; the passive joint torques start at
     # whichever of these and the jumper's limits is the narrower
     joint_range_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # the joint angles a recording of the subject reaches [rad, the jumper's signs]
+    # (:func:`reached_joint_ranges`): where a passive limit (after joint_range_rad) would
+    # carry more than REACH_WALL_N_M_PER_KG there, its onset moves out to them plus
+    # REACH_MARGIN_RAD
+    reached_range_rad: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         out = {'mass': dict(self.mass), 'length': dict(self.length),
@@ -115,9 +125,10 @@ class SubjectScale:
             out['max_isometric_force_source'] = self.f0_source
         if self.l_opt_m:
             out['optimal_fiber_length_m'] = {n: float(v) for n, v in self.l_opt_m.items()}
-        if self.joint_range_rad:
-            out['joint_range_rad'] = {n: [float(lo), float(hi)]
-                                      for n, (lo, hi) in self.joint_range_rad.items()}
+        for key in ('joint_range_rad', 'reached_range_rad'):
+            if getattr(self, key):
+                out[key] = {n: [float(lo), float(hi)] for n, (lo, hi) in
+                            getattr(self, key).items()}
         return out
 
 
@@ -209,6 +220,13 @@ def scale_parameters(params: JumperParameters, scale: SubjectScale) -> JumperPar
         if name in scale.joint_range_rad:
             lo, hi = scale.joint_range_rad[name]
             lower[j], upper[j] = max(lower[j], lo), min(upper[j], hi)
+        if name in scale.reached_range_rad:             # ... and the walls it went through
+            lo, hi = scale.reached_range_rad[name]
+            wall = REACH_WALL_N_M_PER_KG * sum(sg.mass for sg in segs.values())
+            if pj.legs * abs(k[j, 0]) * np.exp(k[j, 1] * (hi - upper[j])) > wall:
+                upper[j] = hi + REACH_MARGIN_RAD
+            if pj.legs * abs(k[j, 2]) * np.exp(k[j, 3] * (lo - lower[j])) > wall:
+                lower[j] = lo - REACH_MARGIN_RAD
     passive = replace(pj, k=k, damping=pj.damping * scale.passive, theta_lower=lower,
                       theta_upper=upper)
     m = params.muscles
@@ -341,6 +359,48 @@ def joint_ranges_from_moment_arms(arms: dict) -> dict[str, tuple[float, float]]:
     return out
 
 
+#: How far past the angles a recording reaches [rad] a moved passive limit starts (6 deg:
+#: there the dorsiflexion wall's torque at the reached angle is 0.04 N m a leg; at 3 deg
+#: (0.3 N m) the shipped drop jump's thigh fit went 1.7 -> 2.1 deg RMS, at 0 deg its knee's
+#: agreement with OpenSim's inverse dynamics 0.94 -> 0.92; 6 and 10 deg gave the same figures)
+REACH_MARGIN_RAD = float(np.deg2rad(6.0))
+#: A passive limit that would have to carry more than this [N m per kg of body mass] at an
+#: angle a recording reaches contradicts the recording, and its onset moves out to the
+#: angles reached (plus REACH_MARGIN_RAD): the limit, not the muscles, would be holding the
+#: joint (a landing's whole ankle moment is 2-4 N m/kg). AddBiomechanics' Subject4 lands at
+#: 50 deg of dorsiflexion, 20 past the jumper's onset (30 deg), where that exponential wall
+#: gives 10^5 N m: its ankle torque was held 110 N m under OpenSim's inverse dynamics
+#: (correlation 0.43 -> 0.99 with the onset moved). Below it the limit stays: the shipped
+#: subject's drop jumps go 3-5 deg past (0.35-1.15 N m/kg), and moving it there let the
+#: unseen DJ4's estimate keep the foot flat while the heel rose (knee correlation 0.85 ->
+#: 0.80, foot 2.5 -> 3.9 deg RMS); the soft hip limit at 129 deg of flexion gives 0.5 N m/kg,
+#: and moving it let the shipped drop jump's final landing run away (README, Lab recordings).
+REACH_WALL_N_M_PER_KG = 2.0
+
+
+def reached_joint_ranges(theta: np.ndarray, percent: float = 0.5,
+                         ) -> dict[str, tuple[float, float]]:
+    """The joint angles [rad, JOINT_COORDINATES, the jumper's signs] a recording's segment
+    angles theta [n, 4] (foot, shank, thigh, HAT; rad, NaN where missing) reach: the
+    ``percent`` and 100 - ``percent`` percentiles of ankle = foot - shank, knee = shank -
+    thigh, hip = thigh - HAT (README, Conventions), so one stray frame does not set them.
+
+    Why: the jumper's passive torques (Anderson 1999) stiffen from 30 deg of ankle
+    dorsiflexion and 104 deg of hip flexion, but lab subjects land deeper (the shipped drop
+    jump: 34 and 120 deg; AddBiomechanics' Subject4: 50 deg at the ankle). A measured angle
+    the model forbids makes the estimate fight the data: Subject4's first drop jump had its
+    ankle held 14 deg short and its ankle torque 110 N m under OpenSim's inverse dynamics
+    (correlation 0.43), the ligament taking the rest (README, Lab recordings)."""
+    theta = np.asarray(theta, dtype=float)
+    joints = theta[:, :3] - theta[:, 1:4]
+    joints = joints[np.isfinite(joints).all(axis=1)]
+    if joints.shape[0] == 0:
+        return {}
+    lo = np.percentile(joints, percent, axis=0)
+    hi = np.percentile(joints, 100.0 - percent, axis=0)
+    return {n: (float(lo[j]), float(hi[j])) for j, n in enumerate(JOINT_COORDINATES)}
+
+
 def subject_parameters(subject: Subject, params: JumperParameters | None = None,
                        ) -> tuple[JumperParameters, SubjectScale]:
     p = params or load_parameters()
@@ -408,15 +468,20 @@ def read_subject(path: str | os.PathLike) -> tuple[Subject, SubjectScale]:
                          l_opt_m={n: float(v) for n, v in
                                   (k.get('optimal_fiber_length_m') or {}).items()},
                          joint_range_rad={n: (float(v[0]), float(v[1])) for n, v in
-                                          (k.get('joint_range_rad') or {}).items()})
+                                          (k.get('joint_range_rad') or {}).items()},
+                         reached_range_rad={n: (float(v[0]), float(v[1])) for n, v in
+                                            (k.get('reached_range_rad') or {}).items()})
     unknown = [n for n in [*scale.paths, *scale.f0_n, *scale.l_opt_m] if n not in MUSCLES]
     if unknown:
         raise ValueError(f'{path}: paths or strengths for unknown muscles {unknown}')
-    unknown = [n for n in scale.joint_range_rad if n not in JOINT_COORDINATES]
-    bad = [n for n, (lo, hi) in scale.joint_range_rad.items() if not lo < hi]
-    if unknown or bad:
-        raise ValueError(f'{path}: joint_range_rad: unknown coordinates {unknown} or empty '
-                         f'ranges {bad} (coordinates {JOINT_COORDINATES}, [lower, upper] rad)')
+    for key in ('joint_range_rad', 'reached_range_rad'):
+        ranges = getattr(scale, key)
+        unknown = [n for n in ranges if n not in JOINT_COORDINATES]
+        bad = [n for n, (lo, hi) in ranges.items()
+               if not (lo <= hi if key == 'reached_range_rad' else lo < hi)]
+        if unknown or bad:
+            raise ValueError(f'{path}: {key}: unknown coordinates {unknown} or empty ranges '
+                             f'{bad} (coordinates {JOINT_COORDINATES}, [lower, upper] rad)')
     return subject, scale
 
 

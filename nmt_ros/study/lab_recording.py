@@ -39,7 +39,7 @@ from nmt_ros.io.opensim_files import (
     write_table,
 )
 from nmt_ros.io.trc import MarkerTable, read_trc
-from nmt_ros.model.parameters import SEGMENTS, load_parameters
+from nmt_ros.model.parameters import JOINT_COORDINATES, SEGMENTS, load_parameters
 from nmt_ros.model.subject import Subject, SubjectScale, scale_factors, scale_parameters
 from nmt_ros.records import Observations
 from nmt_ros.study import sagittal
@@ -397,7 +397,44 @@ def import_lab(*, ik: Path | None = None, trc: Path | None = None, c3d: Path | N
         rec = with_consistent_mass(rec)
     if model is not None and subject_paths:
         rec = with_subject_paths(rec, model)
-    return rec
+    return with_reached_ranges(rec)
+
+
+def with_reached_ranges(rec: LabRecording) -> LabRecording:
+    """The recording with the joint angles it reaches in its subject
+    (``SubjectScale.reached_range_rad``, ``nmt_ros.model.subject.reached_joint_ranges``):
+    where a passive joint limit would carry more than ``REACH_WALL_N_M_PER_KG`` there, its
+    onset moves out to them, said in ``facts['passive_onset_moved_deg']`` and a warning."""
+    from nmt_ros.model.subject import (
+        REACH_MARGIN_RAD,
+        REACH_WALL_N_M_PER_KG,
+        reached_joint_ranges,
+    )
+    reached = reached_joint_ranges(rec.angles)
+    jumper = load_parameters()
+    before = scale_parameters(jumper, rec.scale)
+    out = replace(rec, scale=replace(rec.scale, reached_range_rad=reached))
+    after = scale_parameters(jumper, out.scale)
+    moved = {}
+    for j, name in enumerate(JOINT_COORDINATES):
+        for end, was, now in (('lower', before.passive.theta_lower[j],
+                               after.passive.theta_lower[j]),
+                              ('upper', before.passive.theta_upper[j],
+                               after.passive.theta_upper[j])):
+            if now != was:
+                moved[f'{name} {end}'] = [round(float(np.degrees(was)), 1),
+                                          round(float(np.degrees(now)), 1)]
+    out.facts['reached_range_deg'] = {n: [round(float(np.degrees(v)), 1) for v in r]
+                                      for n, r in reached.items()}
+    out.facts['passive_onset_moved_deg'] = moved
+    if moved:
+        out.facts.setdefault('warnings', []).append(
+            'the recording reaches joint angles where the model\'s passive joint limits would '
+            f'carry more than {REACH_WALL_N_M_PER_KG:g} N m/kg (the limit, not the muscles, '
+            f'holding the joint); their onset moves out to {np.degrees(REACH_MARGIN_RAD):.0f} '
+            'deg past the angles reached (deg, before -> after): '
+            + ', '.join(f'{k} {a} -> {b}' for k, (a, b) in moved.items()))
+    return out
 
 
 def _supported_stretch_hint(estimates: list[dict]) -> str:
