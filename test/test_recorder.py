@@ -475,3 +475,9 @@ def test_the_demo_summary_of_a_bag_without_truth_says_so_instead_of_printing_nan
     synthetic = format_summary({'tracked': {'jump_height_m': 0.25},
                                 'actual': {'jump_height_m': 0.2}})
     assert 'actual (truth) 0.200 m (difference +5.0 cm)' in synthetic
+    # the skeletal tracker's losses of control (its final status's restart count) are said,
+    # also when there were none
+    assert 'skeletal tracker losses of control: none' in format_summary(
+        {'losses_of_control': 0})
+    assert 'skeletal tracker losses of control: 2 (each re-initialised' in format_summary(
+        {'losses_of_control': 2})

@@ -319,6 +319,9 @@ def graph_summary(recording: str | os.PathLike, source: str | os.PathLike | None
     rejected = {n: int(_float(statuses.get(n, {}), 'rejected_total', 0)) for n in NODES
                 if n in statuses}
     summary['rejected'] = rejected
+    # the skeletal tracker's losses of control (each re-initialised from the newest data)
+    if 'skeletal_tracker' in statuses:
+        summary['losses_of_control'] = int(_float(statuses['skeletal_tracker'], 'restarts', 0))
 
     model = default_model()
     jt = read_arrays(recording, topics.SKELETAL_JOINT_TORQUES)
@@ -471,4 +474,9 @@ def format_summary(s: Mapping[str, Any]) -> str:
     rej = {n: v for n, v in s.get('rejected', {}).items() if v}
     if rej:
         lines.append(f'rejected samples: {rej}')
+    if 'losses_of_control' in s:
+        n = s['losses_of_control']
+        lines.append('skeletal tracker losses of control: ' + (
+            'none' if not n else f'{n} (each re-initialised from the newest observations; '
+            'when: the ERROR records of /nmt/status in the recording)'))
     return '\n'.join(lines)
