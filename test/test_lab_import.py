@@ -279,6 +279,13 @@ def test_bad_inputs_give_clear_errors(tmp_path: Path, trial: dict, subject: obje
         f'ground_force_1_{q}{a}' for q in 'vp' for a in 'xyz'], np.hstack([f * 0, p]))
     with pytest.raises(ValueError, match='no free-moment columns'):
         read_plates(grf)
+    # another lab's marker names: every marker the map needs and the file lacks, and what to do
+    names = [n.lower() + '_x' for n in trial['names']]
+    other = read_trc(write_trc(tmp_path / 'o.trc', trial['t'], names, trial['xyz']))
+    loads = [GroundLoad(*ld) for ld in trial['loads']]
+    with pytest.raises(ValueError, match=r'needs markers .* does not have: .*RKNE.*LKNE.*'
+                       r'--marker-map MAP\.yaml .*or import the lab\'s OpenSim IK with --ik'):
+        recording.import_markers(other, trial['ta'], loads, _map(), subject)
     # a subject facing the other way
     markers = read_trc(write_trc(tmp_path / 'f.trc', trial['t'], trial['names'],
                                  trial['xyz']))

@@ -222,6 +222,17 @@ def marker_segment_angles(markers: MarkerTable, marker_map: dict, frame: Sagitta
                           ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray],
                                      list[dict]]:
     """Per-leg [n, 3] (foot, shank, thigh), HAT [n], ankle centres [n, 2], gap repairs."""
+    missing = [n for n in markers_used(marker_map) if n not in markers.names]
+    if missing:     # another lab's marker set: say all that is missing and what to do
+        raise ValueError(
+            f'the marker map {marker_map.get("name", "")!r} '
+            f'({Path(marker_map.get("source_file", "")).name}) needs markers '
+            f'{markers.source or "the recording"} does not have: {", ".join(missing)} '
+            f'(it has: {", ".join(markers.names)}). Give a map of this lab\'s names with '
+            '--marker-map MAP.yaml (format: nmt_ros/io/marker_map.py; calibrate its zero '
+            'angles on a model carrying those markers with python -m '
+            'nmt_ros.study.marker_calibration --model M.osim --map MAP.yaml), or import '
+            "the lab's OpenSim IK with --ik")
     pos, repairs = {}, []
     for name in markers_used(marker_map):
         pos[name], fixed = sagittal.fill_gaps(markers.time, markers.marker(name), max_gap_s,
