@@ -178,10 +178,10 @@ class RoutineBuilder:
               cycle: Cycle, remember: bool = True) -> Plan:
         """A solved plan, counted and reported. ``solve(guess=...)`` starts from the last plan of
         the same kind (``templates[template]``), which is nearly always the fastest start;
-        when that does not converge (seed 8's fourth landing: a 9 cm jump after a 20 cm one,
-        infeasible from the higher jump's landing), it starts again from the planner's own
-        guess. ``remember``: the plan becomes the template (a push-off's is kept only once its
-        height is accepted). RuntimeError if neither converges."""
+        when that does not converge (a warm start can end infeasible where the planner's own
+        guess converges), it starts again from the planner's own guess. ``remember``: the
+        plan becomes the template (a push-off's is kept only once its height is accepted).
+        RuntimeError if neither converges."""
         guess = self.templates.get(template)
         plan = solve(guess=guess)
         if not plan.success and guess is not None:
@@ -273,20 +273,21 @@ class RoutineBuilder:
         kind = 'drop' if cycle.kind == 'drop' else 'cmj'
         parts, touchdowns = len(self.parts), list(cycle.touchdowns_s)
         warm = kind in self.templates       # else the push-off was planned cold already
-        for attempt in range(2):
-            sim, plan = self.push_phase(cycle, x, u, anchors, t0)
-            try:
-                return self.landing_phase(cycle, sim.x_end, plan.u[-1], sim.anchors_end,
-                                          t0 + plan.t[-1])
-            except RuntimeError as exc:
-                if attempt == 1 or not warm:
-                    raise
-                self.say(f'  {exc}: the push-off again from the default guess')
-                del self.parts[parts:]
-                cycle.touchdowns_s = list(touchdowns)
-                cycle.replans += 1
-                del self.templates[kind]
-        raise AssertionError('unreachable')
+        sim, plan = self.push_phase(cycle, x, u, anchors, t0)
+        try:
+            return self.landing_phase(cycle, sim.x_end, plan.u[-1], sim.anchors_end,
+                                      t0 + plan.t[-1])
+        except RuntimeError as exc:
+            if not warm:
+                raise
+            self.say(f'  {exc}: the push-off again from the default guess')
+        del self.parts[parts:]
+        cycle.touchdowns_s = list(touchdowns)
+        cycle.replans += 1
+        del self.templates[kind]
+        sim, plan = self.push_phase(cycle, x, u, anchors, t0)
+        return self.landing_phase(cycle, sim.x_end, plan.u[-1], sim.anchors_end,
+                                  t0 + plan.t[-1])
 
     def _push_grid(self) -> dict:
         return ({'coarse': 0.02, 'fine': 0.005} if self.s.quick else {})
