@@ -3,10 +3,11 @@ of a routine and tracked offline (= live) by the moving-horizon estimator; the r
 torques against the truth over the whole routine, the landings and the flights, with the
 re-initialisations and the coverage of the force-plate instants that exist.
 
-    python bench/bench_unseen_faults.py [--bag bags/routine] [--seed 1] [--duration 60]
-                                        [--faults none,plate_gap,...] [--json F]
+    python bench/bench_unseen_faults.py [--bag bags/routine] [--seeds 1] [--duration 60]
+                                        [--faults none,plate_gap,...] [--set K=V ...]
+                                        [--json F]
 
-The patterns (random times from ``--seed`` + 100, per minute of data):
+The patterns (random times from the seed + 100, per minute of data):
 
     none            the realisation as generated
     plate_gap       6 bursts of 20-150 ms of force-plate messages absent (not NaN)
@@ -116,34 +117,58 @@ def apply_fault(name: str, ta: np.ndarray, angles: np.ndarray, tw: np.ndarray,
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--bag', default=str(ROOT / 'bags' / 'routine'))
-    ap.add_argument('--seed', type=int, default=1, help='noise realisation (faults: +100)')
+    ap.add_argument('--seeds', default='1',
+                    help='noise realisations, comma-separated (faults: seed + 100); with '
+                    'more than one, each pattern also gets the mean over them (restarts: sum)')
     ap.add_argument('--duration', type=float, default=60.0, help='seconds of the routine [s]')
     ap.add_argument('--faults', default=','.join(PATTERNS))
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
+                    help='MovingHorizonSettings overrides (Python literals), e.g. '
+                    'frame_clock_alpha=0 saturation_min_bw=0: without the repairs')
     ap.add_argument('--json', default=None, help='write the figures here')
     args = ap.parse_args()
+    settings = MovingHorizonSettings().with_(**MovingHorizonSettings.overrides(args.set))
+    seeds = [int(x) for x in args.seeds.split(',')]
     model = default_model()
     bw = model.p.body_weight
     truth, fine = plate_rate_truth(args.bag)
     scored = truth.between(0.0, args.duration)
-    obs, _ = make_routine_observations(fine, RoutineObservationSettings(seed=args.seed), bw)
-    sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
     rows = []
-    print('fault            restarts  coverage  torques % of peak (ankle / knee / hip): '
+    print('fault            seed restarts  coverage  torques % of peak (ankle / knee / hip): '
           'all; landing; flight')
-    for name in args.faults.split(','):
-        rng = np.random.default_rng(100 + args.seed)
-        ta, a, tw, w = apply_fault(name, obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw],
-                                   obs.wrench[sw], bw, rng)
-        run = estimate(model, ta, a, tw, w, MovingHorizonSettings())
-        s = phase_scores(model, scored, run.refined.t, run.refined.tau)
-        row = {'fault': name, 'restarts': run.restarts,
-               'coverage_of_plate_instants': float(np.isin(tw, run.refined.t).mean()),
-               **{ph: [round(v, 2) for v in s[ph]['torque_rms_pct_peak'].values()]
-                  for ph in ('all', 'landing', 'flight')}}
-        rows.append(row)
-        print(f"{name:16s} {row['restarts']:8d}  {row['coverage_of_plate_instants']:8.4f}  "
+
+    def show(row: dict, seed: str) -> None:
+        print(f"{row['fault']:16s} {seed:>4s} {row['restarts']:8d}  "
+              f"{row['coverage_of_plate_instants']:8.4f}  "
               + '; '.join(' / '.join(f'{v:.2f}' for v in row[ph])
                           for ph in ('all', 'landing', 'flight')), flush=True)
+
+    for name in args.faults.split(','):
+        mine = []
+        for seed in seeds:
+            obs, _ = make_routine_observations(fine, RoutineObservationSettings(seed=seed), bw)
+            sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
+            rng = np.random.default_rng(100 + seed)
+            ta, a, tw, w = apply_fault(name, obs.t_angles[sa], obs.angles[sa],
+                                       obs.t_wrench[sw], obs.wrench[sw], bw, rng)
+            run = estimate(model, ta, a, tw, w, settings)
+            s = phase_scores(model, scored, run.refined.t, run.refined.tau)
+            row = {'fault': name, 'seed': seed, 'restarts': run.restarts,
+                   'coverage_of_plate_instants': float(np.isin(tw, run.refined.t).mean()),
+                   **{ph: [round(v, 2) for v in s[ph]['torque_rms_pct_peak'].values()]
+                      for ph in ('all', 'landing', 'flight')}}
+            mine.append(row)
+            show(row, str(seed))
+        rows += mine
+        if len(mine) > 1:
+            mean = {'fault': name, 'seed': 'mean',
+                    'restarts': int(sum(r['restarts'] for r in mine)),
+                    'coverage_of_plate_instants': float(np.mean(
+                        [r['coverage_of_plate_instants'] for r in mine])),
+                    **{ph: [round(float(v), 2) for v in np.mean([r[ph] for r in mine], 0)]
+                       for ph in ('all', 'landing', 'flight')}}
+            rows.append(mean)
+            show(mean, 'mean')
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -36,6 +36,7 @@ from nmt_ros.model.jumper import JumperModel
 from nmt_ros.model.point_map import PointMap
 from nmt_ros.model.squat import rest_activations
 from nmt_ros.records import SKTResult
+from nmt_ros.tracking.frame_clock import FrameClock
 from nmt_ros.tracking.moving_horizon.point_functions import excitation, output_function
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV, NX, PLATE
 from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKernel, capacity
@@ -43,6 +44,7 @@ from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 from nmt_ros.tracking.moving_horizon.spline import KnotGrid
 from nmt_ros.tracking.moving_horizon.window import SlidingWindow
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
+from nmt_ros.tracking.plate_saturation import CHANNELS, PlateSaturation
 
 
 @dataclass
@@ -152,15 +154,53 @@ class MovingHorizonEstimator:
         self.updates = 0
         self.restarts = 0
         self.stride = 1                        # update periods between updates (_stride)
+        self.newest_stamp = -np.inf            # newest mocap stamp as received [s]
+        self.frame_clock = (FrameClock(1.0 / st.angle_rate_hz, st.frame_clock_alpha)
+                            if st.frame_clock_alpha > 0 else None)
+        self.jitter_said = False
+        self.saturation = (PlateSaturation(st.saturation_min_bw * bw
+                                           * np.array([1.0, 1.0, st.moment_lever_m]))
+                           if st.saturation_min_bw > 0 else None)
 
     # ------------------------------------------------------------------ inputs
     def add_angles(self, t: float, theta: np.ndarray) -> None:
-        """A mocap sample: segment angles [4] rad at trial time t [s] (NaN = occluded)."""
+        """A mocap sample: segment angles [4] rad at trial time t [s] (NaN = occluded),
+        taken at its frame's instant on the camera's frame clock (``frame_clock``)."""
+        if t <= self.newest_stamp:
+            raise ValueError(f'sample at t = {t:.6f} s is not after the previous one '
+                             f'({self.newest_stamp:.6f} s)')
+        self.newest_stamp = t
+        if self.frame_clock is not None:
+            t = self.frame_clock.instant(t)
+            if (not self.jitter_said and self.frame_clock.regularised >= 60
+                    and self.frame_clock.jitter_rms_ms > 0.1):
+                self.jitter_said = True
+                self.events.append(EstimatorEvent(
+                    'warn', t, f'mocap stamps jitter {self.frame_clock.jitter_rms_ms:.2f} ms '
+                    f'RMS about a {1 / self.frame_clock.period_s:.2f} Hz frame clock: the '
+                    'angles are taken at the clock\'s instants',
+                    {'stamp_jitter_rms_ms': self.frame_clock.jitter_rms_ms}))
         self._add(0, t, np.asarray(theta, dtype=float).reshape(4))
 
     def add_wrench(self, t: float, s: np.ndarray) -> None:
-        """A force-plate sample: [Fx, Fy, Mz about the foot COM] at trial time t [s]."""
-        self._add(1, t, np.asarray(s, dtype=float).reshape(3))
+        """A force-plate sample: [Fx, Fy, Mz about the foot COM] at trial time t [s];
+        a channel clipped by a saturated amplifier is missing (``plate_saturation``)."""
+        y = np.array(s, dtype=float).reshape(3)
+        if self.saturation is not None and t > self.newest[1]:
+            now, before, begins = self.saturation.check(y)
+            if (before.any() and self.pending_wrench
+                    and self.pending_wrench[-1][0] == self.newest[1]):
+                self.pending_wrench[-1][1][before] = np.nan   # the run's first sample
+            if now.any():
+                if begins:
+                    names = ', '.join(f'{CHANNELS[c]} {y[c]:.6g}'
+                                      for c in np.flatnonzero(now))
+                    self.events.append(EstimatorEvent(
+                        'warn', t, f'force plate saturated ({names}: the same reading on '
+                        'consecutive samples): taken as missing, bridged by the estimator',
+                        {'saturated_samples': int(self.saturation.saturated.sum())}))
+                y[now] = np.nan
+        self._add(1, t, y)
 
     def _add(self, k: int, t: float, y: np.ndarray) -> None:
         if t <= self.newest[k]:

@@ -36,6 +36,14 @@ class MovingHorizonSettings:
     # faster streams still work, with extra kernel calls)
     angle_rate_hz: float = 120.0
     wrench_rate_hz: float = 1080.0
+    # mocap stamps taken on the camera's frame clock (frame_clock.FrameClock) with this
+    # smoothing fraction per frame (0: the stamps as they are). Uniform stamps pass through
+    # bit for bit; +-2 ms of arrival jitter at 120 Hz is cut to ~0.17 ms RMS
+    frame_clock_alpha: float = 0.03
+    # force-plate channels clipped by a saturated amplifier (plate_saturation): a reading
+    # repeating exactly at or beyond this many body weights (forces; moments: times
+    # moment_lever_m) is missing, not measured (0: off)
+    saturation_min_bw: float = 1.5
     # --- measurement model (the observation specification, OBSERVATION_NOISE)
     angle_sd_deg: tuple[float, float, float, float] = OBSERVATION_NOISE.angle_sd_deg  # foot..HAT
     force_sd_bw: float = OBSERVATION_NOISE.force_sd_bw      # forces' noise, fraction of BW
@@ -402,6 +410,10 @@ class MovingHorizonSettings:
                              'numbers (inf: off)')
         if not (np.isfinite(self.landing_span_s) and self.landing_span_s >= 0):
             raise ValueError(f'landing_span_s ({self.landing_span_s} s) must be 0 or more')
+        if not 0 <= self.frame_clock_alpha <= 1:
+            raise ValueError(f'frame_clock_alpha {self.frame_clock_alpha} must be in [0, 1]')
+        if not (np.isfinite(self.saturation_min_bw) and self.saturation_min_bw >= 0):
+            raise ValueError(f'saturation_min_bw ({self.saturation_min_bw}) must be 0 or more')
         if not 0 < self.wrench_max_cutoff_fraction < 1:
             raise ValueError(f'wrench_max_cutoff_fraction {self.wrench_max_cutoff_fraction} '
                              'must be in (0, 1)')
