@@ -22,6 +22,8 @@ The patterns (random times from the seed + 100, per minute of data):
     foot_offset / thigh_offset / hat_offset   marker misplacement: +5 / -3 / +4 deg throughout
     angle_drift     every angle drifting linearly to +3 deg over the minute
     jitter          mocap stamps jittered uniformly by +-2 ms (still in order)
+    mocap_late      every mocap stamp 10 ms late against the plate's (a fixed camera latency
+                    stamped on arrival)
     clip            the plate saturating at 2.2 BW
 
 About 20 s of CPU per pattern and minute of data (2-core machine).
@@ -49,7 +51,7 @@ from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
 
 PATTERNS = ('none', 'plate_gap', 'mocap_gap', 'all_occluded', 'long_occlusion', 'stuck',
             'plate_step', 'hum', 'gain', 'fx_offset', 'foot_offset', 'thigh_offset',
-            'hat_offset', 'angle_drift', 'jitter', 'clip')
+            'hat_offset', 'angle_drift', 'jitter', 'mocap_late', 'clip')
 
 
 def apply_fault(name: str, ta: np.ndarray, angles: np.ndarray, tw: np.ndarray,
@@ -107,6 +109,8 @@ def apply_fault(name: str, ta: np.ndarray, angles: np.ndarray, tw: np.ndarray,
         a += np.radians(3.0) * (ta / 60.0)[:, None]
     elif name == 'jitter':
         ta = ta + rng.uniform(-0.002, 0.002, ta.size)
+    elif name == 'mocap_late':
+        ta = ta + 0.010
     elif name == 'clip':
         w[:, 1] = np.minimum(w[:, 1], 2.2 * body_weight)
     else:

@@ -79,3 +79,17 @@ def test_the_estimator_takes_mocap_samples_at_the_clocks_instants_and_says_so():
     assert 0.8 < said[0].values['stamp_jitter_rms_ms'] < 1.6
     with pytest.raises(ValueError, match='not after the previous'):
         est.add_angles(float(stamps[-1]), np.zeros(4))   # a repeated stamp is not a frame
+
+
+def test_a_known_camera_latency_is_taken_off_the_stamps():
+    from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
+
+    model = default_model()
+    true = 3.0 + np.arange(120) * T
+    est = MovingHorizonEstimator(model, MovingHorizonSettings(angle_latency_s=0.012))
+    for s in true + 0.012:                       # stamped on arrival, 12 ms after the frame
+        est.add_angles(float(s), np.zeros(4))
+    taken = np.array([p[0] for p in est.pending_angles])
+    assert np.abs(taken - true).max() < 1e-12
+    with pytest.raises(ValueError, match='angle_latency_s'):
+        MovingHorizonEstimator(model, MovingHorizonSettings(angle_latency_s=-0.01))

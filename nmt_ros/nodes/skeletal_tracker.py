@@ -109,6 +109,17 @@ class SkeletalTrackerNode(TrackerNode):
                                 'of data (CPU vs latency)', low=1.0, high=2000.0)
         self.iterations = p('iterations', d.iterations, 'mhe: Gauss-Newton iterations per '
                             'update', low=1, high=20)
+        self.mocap_latency_s = p('mocap_latency_s', d.angle_latency_s, "mhe: the mocap "
+                                 'stamps are this long after the instant they measured (a '
+                                 "camera system's latency, stamped on arrival) [s]",
+                                 low=0.0, high=1.0)
+        self.frame_clock_alpha = p('frame_clock_alpha', d.frame_clock_alpha, "mhe: mocap "
+                                   "stamps taken on the camera's frame clock, this smoothing "
+                                   'per frame (0 = the stamps as received)', low=0.0, high=1.0)
+        self.saturation_min_bw = p('saturation_min_bw', d.saturation_min_bw, 'mhe: a plate '
+                                   'reading at least this [BW] repeating exactly is a '
+                                   'saturated channel, taken as missing (0 = off)',
+                                   low=0.0, high=100.0)
         self.wrench_cutoff_hz = p('wrench_cutoff_hz', d.wrench_cutoff_hz, 'mhe: smoothness of '
                                   'the estimated ground wrench, the cut-off of its '
                                   'smoothing-spline prior [Hz] (at most 0.8 x the force '
@@ -221,7 +232,10 @@ class SkeletalTrackerNode(TrackerNode):
                                     still_rate_sd_scale=self.still_rate_sd_scale,
                                     joint_torques=self.joint_torques,
                                     angle_rate_hz=self.angle_rate_hz,
-                                    wrench_rate_hz=self.wrench_rate_hz)
+                                    wrench_rate_hz=self.wrench_rate_hz,
+                                    angle_latency_s=self.mocap_latency_s,
+                                    frame_clock_alpha=self.frame_clock_alpha,
+                                    saturation_min_bw=self.saturation_min_bw)
         self.status.settings = {
             'estimator': self.estimator, 'lag_s': self.lag_s, 'window_s': self.window_s,
             'update_rate_hz': self.update_rate_hz, 'iterations': self.iterations,
@@ -239,6 +253,9 @@ class SkeletalTrackerNode(TrackerNode):
             'excitation_rate_weight': self.excitation_rate_weight,
             'landing_rate_sd_scale': self.mhe_settings.landing_rate_sd_scale,
             'still_rate_sd_scale': self.still_rate_sd_scale,
+            'mocap_latency_s': self.mocap_latency_s,
+            'frame_clock_alpha': self.frame_clock_alpha,
+            'saturation_min_bw': self.saturation_min_bw,
             'airborne_translation_diffusion_m_sqrt_s':
                 self.mhe_settings.airborne_translation_diffusion_m_sqrt_s}
 

@@ -164,12 +164,15 @@ class MovingHorizonEstimator:
 
     # ------------------------------------------------------------------ inputs
     def add_angles(self, t: float, theta: np.ndarray) -> None:
-        """A mocap sample: segment angles [4] rad at trial time t [s] (NaN = occluded),
-        taken at its frame's instant on the camera's frame clock (``frame_clock``)."""
+        """A mocap sample: segment angles [4] rad stamped at trial time t [s] (NaN =
+        occluded), taken at its frame's instant on the camera's frame clock
+        (``frame_clock``), ``angle_latency_s`` before the stamp."""
         if t <= self.newest_stamp:
             raise ValueError(f'sample at t = {t:.6f} s is not after the previous one '
                              f'({self.newest_stamp:.6f} s)')
         self.newest_stamp = t
+        if self.settings.angle_latency_s:
+            t = t - self.settings.angle_latency_s
         if self.frame_clock is not None:
             t = self.frame_clock.instant(t)
             if (not self.jitter_said and self.frame_clock.regularised >= 60

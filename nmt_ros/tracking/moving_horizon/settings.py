@@ -36,6 +36,11 @@ class MovingHorizonSettings:
     # faster streams still work, with extra kernel calls)
     angle_rate_hz: float = 120.0
     wrench_rate_hz: float = 1080.0
+    # mocap stamps this long after the instant they measured [s] (a camera system's
+    # latency, stamped on arrival: Vicon and OptiTrack report theirs); subtracted. Measured
+    # with 10 ms unaccounted (bench/bench_unseen_faults.py --faults mocap_late, realisations
+    # 1-4): landing knee / hip 5.45 / 7.67 -> 9.33 / 10.79 % of peak
+    angle_latency_s: float = 0.0
     # mocap stamps taken on the camera's frame clock (frame_clock.FrameClock) with this
     # smoothing fraction per frame (0: the stamps as they are). Uniform stamps pass through
     # bit for bit; +-2 ms of arrival jitter at 120 Hz is cut to ~0.17 ms RMS
@@ -410,6 +415,8 @@ class MovingHorizonSettings:
                              'numbers (inf: off)')
         if not (np.isfinite(self.landing_span_s) and self.landing_span_s >= 0):
             raise ValueError(f'landing_span_s ({self.landing_span_s} s) must be 0 or more')
+        if not (np.isfinite(self.angle_latency_s) and 0 <= self.angle_latency_s <= 1):
+            raise ValueError(f'angle_latency_s ({self.angle_latency_s} s) must be in [0, 1]')
         if not 0 <= self.frame_clock_alpha <= 1:
             raise ValueError(f'frame_clock_alpha {self.frame_clock_alpha} must be in [0, 1]')
         if not (np.isfinite(self.saturation_min_bw) and self.saturation_min_bw >= 0):
