@@ -335,14 +335,18 @@ def test_moving_horizon_node_estimates_from_start_s_on(ros_context):
 @pytest.mark.slow
 def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_context):
     """The default Stage 1 (estimator 'mhe'): a NaN angle is a missing value (reported, then
-    bridged by the dynamics: the estimates go on at every instant), inf, short, misnamed,
+    bridged by the dynamics: the estimates go on at every instant), so is a saturated
+    plate reading (reported; its instants still estimated), inf, short, misnamed,
     wrongly framed, duplicate and late samples are rejected and reported; nothing published
     is non-finite, and the estimates are stamped with force-plate instants."""
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
 
+    from nmt_ros.model.jumper import default_model
+
     obs, sa, sw = _observations()
     segs = ['foot', 'shank', 'thigh', 'hat']
+    clipped = 3.0 * default_model().p.body_weight
     n_a = 22                                      # 0.175 s of the reference jump
     events, n_w = _in_stamp_order(sa, sw, n_a)
     with _mhe_node(ros_context, 'probe_mhe') as (skel, status, outputs, pub_a, pub_w,
@@ -362,6 +366,8 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
                 msg = to_planar_wrench(stamp, 'foot_com', obs.wrench[i])
                 if i == 40:
                     msg.wrench.force.y = float('inf')
+                if 80 <= i < 84:                  # a saturated amplifier: 3 BW, repeated
+                    msg.wrench.force.y = clipped
                 pub_w.publish(msg)
                 if i == 60:
                     pub_w.publish(msg)
@@ -379,6 +385,8 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
                       "missing ['foot', 'shank', 'thigh', 'hat']",
                       "frame_id is 'plate', expected 'foot_com'",
                       'duplicate stamp', 'initialised',
+                      f'force plate saturated (Fy {clipped:.6g}: the same reading '
+                      'on consecutive samples): taken as missing',
                       'gap of 1.9 ms after 1700000000.036111111; not filled (bridged by the '
                       'estimator)'):
             assert words in text, words
