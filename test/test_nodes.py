@@ -341,7 +341,6 @@ def test_moving_horizon_node_reports_bad_input_and_bridges_missing_values(ros_co
     is non-finite, and the estimates are stamped with force-plate instants."""
     from msg_adapters.joint_state import to_joint_state
     from msg_adapters.planar import to_planar_wrench
-
     from nmt_ros.model.jumper import default_model
 
     obs, sa, sw = _observations()
