@@ -88,3 +88,19 @@ def test_the_estimator_takes_saturated_channels_as_missing_and_says_so():
     assert np.isfinite(y[:, [0, 2]]).all()           # the other channels still measured
     said = [e for e in est.events if 'saturated' in e.message]
     assert len(said) == 1 and said[0].level == 'warn' and 'Fy' in said[0].message
+
+
+def test_a_signal_held_between_samples_is_not_taken_for_saturation():
+    """A 100 Hz plate up-sampled to 1000 Hz by repetition repeats every reading ten times,
+    at high loads too: the detector sees the repeats at low loads and stops looking."""
+    t, w = impacts(np.random.default_rng(4))
+    held = np.repeat(w[::10], 10, axis=0)[:w.shape[0]]
+    det = PlateSaturation(levels())
+    found = run(det, held)
+    assert det.held[1]
+    first_high = int(np.argmax(np.abs(held[:, 1]) >= 1.5 * BW))
+    assert not found[first_high:].any()        # judged held before the first impact
+    # a noisy signal is never judged held
+    det = PlateSaturation(levels())
+    run(det, w)
+    assert not det.held.any()

@@ -12,13 +12,22 @@ and equals the previous sample's exactly, or equals a level already found satura
 first sample of a run is only recognisable at the second: ``check`` says so, and the caller
 withdraws it if it still can. Measurement noise makes exact repeats of a live load
 impossible; the magnitude floor keeps out the exact zeros of a lab's thresholded flight
-phases and the repeats of a coarsely quantised quiet stance.
+phases and the repeats of a coarsely quantised quiet stance, and a channel whose readings
+below the floor repeat often (a signal held between samples, up-sampled by repetition) is
+not checked at all (``held``).
 """
 from __future__ import annotations
 
 import numpy as np
 
 CHANNELS = ('Fx', 'Fy', 'Mz')          # the planar plate sample's channels [N, N, N m]
+#: a channel whose non-zero readings below the floor repeat exactly more often than this
+#: (of at least HELD_MIN_SAMPLES; judged every HELD_EVERY) is held or coarsely quantised and
+#: not checked: noise makes a repeat rare (2 % BW noise on 1 N steps: ~2 %), a signal
+#: up-sampled 2x by repetition repeats half its readings
+HELD_REPEAT_FRACTION = 0.2
+HELD_MIN_SAMPLES = 200
+HELD_EVERY = 50
 
 
 class PlateSaturation:
@@ -35,12 +44,30 @@ class PlateSaturation:
         self.in_run = False
         self._none = np.zeros(self.min_level.size, dtype=bool)
         self._none.flags.writeable = False
+        # readings below the floor (non-zero) and how many repeat the previous one exactly: a
+        # signal held between samples (up-sampled by repetition) or coarsely quantised repeats
+        # at any load, so a repeat is no sign of saturation there
+        self.low_count = np.zeros(self.min_level.size, dtype=np.int64)
+        self.low_repeats = np.zeros(self.min_level.size, dtype=np.int64)
+        self.held = np.zeros(self.min_level.size, dtype=bool)   # channels not checked
+        self.samples = 0
+        self.newly_held: np.ndarray | None = None  # channels found held at the last check
 
     def check(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
         """(saturated channels of ``y`` [bool per channel], channels of the previous sample
         found saturated only now [bool per channel], whether a run begins here)."""
         y = np.asarray(y, dtype=float)
-        high = np.abs(y) >= self.min_level          # False for NaN
+        mag = np.abs(y)
+        high = mag >= self.min_level                # False for NaN
+        self.newly_held = None
+        if self.previous is not None:
+            low = (mag < self.min_level) & (mag > 0)
+            self.low_count += low
+            self.low_repeats += low & (y == self.previous)
+            self.samples += 1
+            if self.samples % HELD_EVERY == 0:
+                self._judge_held()
+        high &= ~self.held
         if not high.any():                          # the common case, cheaply
             self.previous = y
             self.in_run = False
@@ -60,3 +87,11 @@ class PlateSaturation:
         self.in_run = bool(now.any())
         self.runs += begins
         return now, before, begins
+
+    def _judge_held(self) -> None:
+        held = ((self.low_count >= HELD_MIN_SAMPLES)
+                & (self.low_repeats > HELD_REPEAT_FRACTION * self.low_count))
+        new = held & ~self.held
+        if new.any():
+            self.held |= new
+            self.newly_held = new

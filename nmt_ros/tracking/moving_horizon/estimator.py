@@ -191,6 +191,12 @@ class MovingHorizonEstimator:
         y = np.array(s, dtype=float).reshape(3)
         if self.saturation is not None and t > self.newest[1]:
             now, before, begins = self.saturation.check(y)
+            if self.saturation.newly_held is not None:
+                names = ', '.join(CHANNELS[c] for c in np.flatnonzero(
+                    self.saturation.newly_held))
+                self.events.append(EstimatorEvent(
+                    'info', t, f'force plate {names}: readings repeat exactly at low loads '
+                    '(a held or coarsely quantised signal): saturation not looked for there'))
             if (before.any() and self.pending_wrench
                     and self.pending_wrench[-1][0] == self.newest[1]):
                 self.pending_wrench[-1][1][before] = np.nan   # the run's first sample
