@@ -50,11 +50,38 @@ def test_jittered_stamps_are_put_back_on_the_frame_clock(drift):
 
 
 def test_a_clock_reset_restarts_the_clock_at_the_stamp():
-    t = np.r_[np.arange(100) * T, 100 * T + 0.5 * T + np.arange(100) * T]   # half a frame
+    from nmt_ros.tracking.frame_clock import RESYNC_AFTER
+
+    t = np.r_[np.arange(100) * T, 100 * T + 0.47 * T + np.arange(100) * T]   # ~half a frame
     clock = FrameClock(T)
     got = instants(t, clock)
     assert clock.resyncs == 1
-    assert np.array_equal(got, t)        # uniform on both sides of the reset
+    run = slice(100, 100 + RESYNC_AFTER - 1)     # the run that tells a reset from jitter
+    assert np.array_equal(np.delete(got, np.r_[run]), np.delete(t, np.r_[run]))
+    assert np.abs(got[run] - t[run]).max() < 0.5 * T
+    assert (np.diff(got) > 0).all()
+
+
+@pytest.mark.parametrize('jitter_ms, clock_better', [(3.0, True), (5.0, False)])
+def test_jitter_too_large_to_tell_frames_apart_leaves_the_stamps(jitter_ms, clock_better):
+    """+-3 ms at 120 Hz (0.36 of a period): the clock's instants within 0.4 ms RMS of the
+    frames. +-5 ms: a stamp can sit nearer the next frame than its own, so the clock
+    would assign frames wrongly; the stamps are returned (after the first 50 frames) and
+    the instants stay increasing."""
+    rng = np.random.default_rng(3)
+    true = np.arange(3000) * T
+    stamps = true + rng.uniform(-jitter_ms, jitter_ms, true.size) * 1e-3
+    keep = np.r_[True, np.diff(stamps) > 0]
+    true, stamps = true[keep], stamps[keep]
+    clock = FrameClock(T)
+    got = instants(stamps, clock)
+    assert (np.diff(got) > 0).all()
+    if clock_better:
+        assert np.sqrt(np.mean((got - true)[100:] ** 2)) < 0.4e-3
+        assert clock.passed_through == 0
+    else:
+        assert np.array_equal(got[100:], stamps[100:])
+        assert clock.passed_through > 0.9 * true.size
 
 
 def test_bad_periods_are_refused():
