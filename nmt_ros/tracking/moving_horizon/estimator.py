@@ -174,15 +174,17 @@ class MovingHorizonEstimator:
         if self.settings.angle_latency_s:
             t = t - self.settings.angle_latency_s
         if self.frame_clock is not None:
-            t = self.frame_clock.instant(t)
-            if (not self.jitter_said and self.frame_clock.regularised >= 60
-                    and self.frame_clock.jitter_rms_ms > 0.1):
+            clock = self.frame_clock
+            t = clock.instant(t)
+            if not self.jitter_said and clock.frames >= 120 and clock.jitter_rms_ms > 0.1:
                 self.jitter_said = True
+                what = ('too much to tell frames apart: the stamps are used as received'
+                        if clock.passed_through > clock.frames // 2
+                        else "the angles are taken at the clock's instants")
                 self.events.append(EstimatorEvent(
-                    'warn', t, f'mocap stamps jitter {self.frame_clock.jitter_rms_ms:.2f} ms '
-                    f'RMS about a {1 / self.frame_clock.period_s:.2f} Hz frame clock: the '
-                    'angles are taken at the clock\'s instants',
-                    {'stamp_jitter_rms_ms': self.frame_clock.jitter_rms_ms}))
+                    'warn', t, f'mocap stamps jitter {clock.jitter_rms_ms:.2f} ms RMS about a '
+                    f'{1 / clock.period_s:.2f} Hz frame clock: {what}',
+                    {'stamp_jitter_rms_ms': clock.jitter_rms_ms}))
         self._add(0, t, np.asarray(theta, dtype=float).reshape(4))
 
     def add_wrench(self, t: float, s: np.ndarray) -> None:
