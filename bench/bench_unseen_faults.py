@@ -5,7 +5,7 @@ re-initialisations and the coverage of the force-plate instants that exist.
 
     python bench/bench_unseen_faults.py [--bag bags/routine] [--seeds 1] [--duration 60]
                                         [--faults none,plate_gap,...] [--set K=V ...]
-                                        [--json F]
+                                        [--json F] [--write-bag DIR]
 
 The patterns (random times from the seed + 100, per minute of data):
 
@@ -123,6 +123,25 @@ def apply_fault(name: str, ta: np.ndarray, angles: np.ndarray, tw: np.ndarray,
     return ta, a, tw, w
 
 
+def write_bag(args: argparse.Namespace, fine: object, bw: float, seed: int) -> int:
+    """The ``--write-bag`` job (see its help)."""
+    from dataclasses import replace
+
+    from nmt_ros.io.trial_bag import write_trial_bag
+
+    obs, _ = make_routine_observations(fine, RoutineObservationSettings(seed=seed), bw)
+    sa, sw = obs.t_angles <= args.duration, obs.t_wrench <= args.duration
+    ta, a, tw, w = obs.t_angles[sa], obs.angles[sa], obs.t_wrench[sw], obs.wrench[sw]
+    rng = np.random.default_rng(100 + seed)
+    for name in args.faults.split(','):
+        ta, a, tw, w = apply_fault(name, ta, a, tw, w, bw, rng)
+    info = write_trial_bag(args.write_bag, replace(obs, t_angles=ta, angles=a, t_wrench=tw,
+                                                   wrench=w, t_ankle=None, ankle=None))
+    print(f'{args.write_bag}: {info.message_count} messages, {args.faults} on realisation '
+          f'{seed}, {args.duration:g} s')
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--bag', default=str(ROOT / 'bags' / 'routine'))
@@ -135,6 +154,10 @@ def main() -> int:
                     help='MovingHorizonSettings overrides (Python literals), e.g. '
                     'frame_clock_alpha=0 saturation_min_bw=0: without the repairs')
     ap.add_argument('--json', default=None, help='write the figures here')
+    ap.add_argument('--write-bag', default=None, metavar='DIR',
+                    help='instead of tracking: every pattern of --faults applied in turn to '
+                    "the first seed's realisation, written as an observation bag (no truth) "
+                    'for the live graph (nmt demo --bag DIR)')
     args = ap.parse_args()
     settings = MovingHorizonSettings().with_(**MovingHorizonSettings.overrides(args.set))
     seeds = [int(x) for x in args.seeds.split(',')]
@@ -142,6 +165,8 @@ def main() -> int:
     bw = model.p.body_weight
     truth, fine = plate_rate_truth(args.bag)
     scored = truth.between(0.0, args.duration)
+    if args.write_bag:
+        return write_bag(args, fine, bw, seeds[0])
     rows = []
     print('fault            seed restarts  coverage  torques % of peak (ankle / knee / hip): '
           'all; landing; flight')
