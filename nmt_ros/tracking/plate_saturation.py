@@ -55,8 +55,9 @@ class PlateSaturation:
 
     def check(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
         """(saturated channels of ``y`` [bool per channel], channels of the previous sample
-        found saturated only now [bool per channel], whether a run begins here)."""
-        y = np.asarray(y, dtype=float)
+        found saturated only now [bool per channel], whether a run begins here). ``y`` is
+        copied: the caller may mark the saturated channels missing in its own array."""
+        y = np.array(y, dtype=float)
         mag = np.abs(y)
         high = mag >= self.min_level                # False for NaN
         self.newly_held = None
