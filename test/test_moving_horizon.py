@@ -389,6 +389,8 @@ def test_still_stance_is_read_off_the_plate_and_tightens_the_excitation_rate_pri
     assert np.array_equal(relax[~still], np.ones(((~still).sum(), 2)))
     with pytest.raises(ValueError, match='still_rate_sd_scale'):
         MovingHorizonSettings(still_rate_sd_scale=0.0).validate()
+    with pytest.raises(ValueError, match='still_rescue_iterations'):
+        MovingHorizonSettings(still_rescue_iterations=-1).validate()
 
 
 def test_quiet_stance_is_tracked_without_loss_of_control(stance, model):

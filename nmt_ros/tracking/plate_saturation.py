@@ -38,6 +38,8 @@ class PlateSaturation:
         are never taken for saturation (``inf``: the channel is not checked)."""
         self.min_level = np.asarray(min_level, dtype=float)
         self.previous: np.ndarray | None = None
+        self._previous: list[float] | None = None      # the same as Python floats
+        self._floor = self.min_level.tolist()
         self.levels: list[set[float]] = [set() for _ in self.min_level]
         self.saturated = np.zeros(self.min_level.size, dtype=np.int64)  # samples per channel
         self.runs = 0                  # runs of saturated samples begun (any channel)
@@ -47,9 +49,10 @@ class PlateSaturation:
         # readings below the floor (non-zero) and how many repeat the previous one exactly: a
         # signal held between samples (up-sampled by repetition) or coarsely quantised repeats
         # at any load, so a repeat is no sign of saturation there
-        self.low_count = np.zeros(self.min_level.size, dtype=np.int64)
-        self.low_repeats = np.zeros(self.min_level.size, dtype=np.int64)
+        self.low_count = [0] * self.min_level.size        # per channel
+        self.low_repeats = [0] * self.min_level.size
         self.held = np.zeros(self.min_level.size, dtype=bool)   # channels not checked
+        self._held = self.held.tolist()
         self.samples = 0
         self.newly_held: np.ndarray | None = None  # channels found held at the last check
 
@@ -58,21 +61,28 @@ class PlateSaturation:
         found saturated only now [bool per channel], whether a run begins here). ``y`` is
         copied: the caller may mark the saturated channels missing in its own array."""
         y = np.array(y, dtype=float)
-        mag = np.abs(y)
-        high = mag >= self.min_level                # False for NaN
         self.newly_held = None
-        if self.previous is not None:
-            low = (mag < self.min_level) & (mag > 0)
-            self.low_count += low
-            self.low_repeats += low & (y == self.previous)
+        # the common case (no channel high) in Python floats and ints
+        values, floor, previous = y.tolist(), self._floor, self._previous
+        high = False
+        for c, v in enumerate(values):
+            mag = abs(v)
+            if mag >= floor[c]:                     # False for NaN
+                high = high or not self._held[c]
+            elif previous is not None and mag > 0:
+                self.low_count[c] += 1
+                self.low_repeats[c] += v == previous[c]
+        if previous is not None:
             self.samples += 1
             if self.samples % HELD_EVERY == 0:
                 self._judge_held()
-        high &= ~self.held
-        if not high.any():                          # the common case, cheaply
+        self._previous = values
+        if not high:
             self.previous = y
             self.in_run = False
             return self._none, self._none, False
+        mag = np.abs(y)
+        high = (mag >= self.min_level) & ~self.held
         now = np.zeros(y.size, dtype=bool)
         before = np.zeros(y.size, dtype=bool)
         for c in np.flatnonzero(high):
@@ -90,9 +100,10 @@ class PlateSaturation:
         return now, before, begins
 
     def _judge_held(self) -> None:
-        held = ((self.low_count >= HELD_MIN_SAMPLES)
-                & (self.low_repeats > HELD_REPEAT_FRACTION * self.low_count))
+        count, repeats = np.array(self.low_count), np.array(self.low_repeats)
+        held = (count >= HELD_MIN_SAMPLES) & (repeats > HELD_REPEAT_FRACTION * count)
         new = held & ~self.held
         if new.any():
             self.held |= new
             self.newly_held = new
+            self._held = self.held.tolist()

@@ -408,10 +408,10 @@ class MovingHorizonEstimator:
         if why is not None and before_step is not None:
             why = self._undo_step(t_u, before_step, why)
             before_step = None
-        if (why is None and st.rescue_iterations
+        iterations = self._rescue_iterations()
+        if (why is None and iterations
                 and self._newest_cost_per_row() > st.rescue_cost_per_row):
-            why = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True,
-                                     st.rescue_iterations)
+            why = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True, iterations)
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
@@ -503,6 +503,18 @@ class MovingHorizonEstimator:
             float(kept[:, 1].sum() + kept[:, 3].sum()), 1.0)
         angles = float(kept[:, 0].sum()) / max(float(kept[:, 1].sum()), 1.0)
         return max(both, angles)
+
+    def _rescue_iterations(self) -> int:
+        """The rescue's iterations at this update: ``rescue_iterations``, at most
+        ``still_rescue_iterations`` where the plate says the body is still over the newest
+        ``relinearise_s`` of segments (there the rescues answer the plate's noise)."""
+        st, w = self.settings, self.window
+        if st.still_rescue_iterations >= st.rescue_iterations:
+            return st.rescue_iterations
+        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
+        if w.still_segments(np.arange(max(w.first, w.last - n_new + 1), w.last + 1)).all():
+            return st.still_rescue_iterations
+        return st.rescue_iterations
 
     def _healthy(self, t_u: float) -> bool:
         """The newest data explained: their cost per row (``_newest_cost_per_row``) below

@@ -258,6 +258,23 @@ class MovingHorizonSettings:
     # fits the newest rows but leaves the window unconverged, which the iterations fix
     rescue_iterations: int = 3
     rescue_cost_per_row: float = 5.0
+    # the rescue's iterations (at most rescue_iterations) where the plate says the body is
+    # still over the newest relinearise_s (window.SlidingWindow.still_segments). In still
+    # stance the rescues are the force plate's noise (their newest wrench rows ~9 per
+    # row, angle rows ~1; 19 % of still updates rescued, 25 % of the others; routine
+    # 0-20 s), and rescues were 46 % of the estimator's CPU. One iteration there instead
+    # of three (2026-12-07, bench/bench_estimator_seeds.py, realisations 1-16 and 17-28,
+    # each against the same run with 3): refined torques 2.47 / 1.93 / 3.01 -> 2.49 /
+    # 1.81 / 2.97 and 2.26 / 1.95 / 3.47 -> 2.27 / 1.95 / 3.47 % of peak, quiet stance
+    # 1.73 / 1.27 / 2.09 -> 1.74 / 1.27 / 2.08 and 1.66 / 1.26 / 2.07 -> the same,
+    # landings 6.63 / 7.40 / 8.73 -> 6.70 / 6.34 / 8.45 and 7.54 / 7.72 / 12.60 -> 7.65 /
+    # 7.66 / 12.76, jump heights 6.36 -> 6.34 and 7.52 -> 7.96 % off, re-initialisations
+    # 3 -> 4 and 5 -> 6 (in 28 minutes: flips of single events, which 0.05 ms of stamp
+    # noise also makes); CPU 0.57-0.59 -> 0.47-0.50 s per s of data (bench/
+    # bench_estimator.py --duration 60 --lags 0.05, runs alternated). None at all in still
+    # stance (0): quiet hip 2.09 -> 2.18, flight hip 8.97 -> 9.33, 5 re-initialisations
+    # (1-16)
+    still_rescue_iterations: int = 1
     # new control points at each update continue the angles and the ankle's position at this
     # fraction of the curve's velocity at the window's end (window.SlidingWindow.extend):
     # 16 realisations of bags/routine, re-initialisations a minute 1.25 at 1.0, 0.19 at
@@ -417,6 +434,10 @@ class MovingHorizonSettings:
             raise ValueError(f'landing_span_s ({self.landing_span_s} s) must be 0 or more')
         if not (np.isfinite(self.angle_latency_s) and 0 <= self.angle_latency_s <= 1):
             raise ValueError(f'angle_latency_s ({self.angle_latency_s} s) must be in [0, 1]')
+        for name in ('rescue_iterations', 'still_rescue_iterations'):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 0):
+                raise ValueError(f'{name} ({getattr(self, name)!r}) must be a whole number, '
+                                 '0 or more')
         if not 0 <= self.frame_clock_alpha <= 1:
             raise ValueError(f'frame_clock_alpha {self.frame_clock_alpha} must be in [0, 1]')
         if not (np.isfinite(self.saturation_min_bw) and self.saturation_min_bw >= 0):

@@ -408,14 +408,15 @@ class SlidingWindow:
             ones = np.ones((slots.size, 1))
             out = kern(z[slots, :NB], z[slots, NB:], *parts, dynamics_scale * ones,
                        ones * (call == 0), relax[slots])
-            H[slots] += out[0]
-            g[slots] += out[1]
-            cost[slots] += out[2][:, 0]
-            rows[slots] += np.column_stack([o[:, 0] for o in out[3:7]])
+            at = slice(None) if call == 0 else slots     # a slice: no gather and scatter
+            H[at] += out[0]
+            g[at] += out[1]
+            cost[at] += out[2][:, 0]
+            rows[at] += np.column_stack([o[:, 0] for o in out[3:7]])
         return Linearisation(segments, H, g, cost, rows, z)
 
     def keep(self, lin: Linearisation) -> None:
-        slot = lin.segments - self.base
+        slot = _as_slice(lin.segments - self.base)
         self.lin_seg[slot] = lin.segments
         self.lin_H[slot] = lin.H
         self.lin_band[slot] = band_form(lin.H, NB)
@@ -653,3 +654,12 @@ def revert_toward_zero(H: np.ndarray, g: np.ndarray, lin: np.ndarray, first: int
     idx = first + np.arange(phi.size)
     scale[idx] = 1.0 / phi
     return H * scale[:, None] * scale[None, :], g * scale, lin / scale
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as a slice where it is a run of consecutive integers (a view, not a copy,
+    when indexing), else itself."""
+    if index.size and index[-1] - index[0] == index.size - 1 and (
+            index.size < 3 or (np.diff(index) == 1).all()):
+        return slice(int(index[0]), int(index[-1]) + 1)
+    return index
