@@ -397,3 +397,39 @@ def test_a_model_the_jumpers_joints_cannot_pose_keeps_the_jumpers_paths(tmp_path
     assert "muscle paths: the scaled jumper's" in proc.stderr
     assert 'no coordinate hip_flexion_r' in proc.stderr
     assert 'paths' not in yaml.safe_load((out / 'subject.yaml').read_text())['scale']
+
+
+def test_a_models_moment_arms_are_measured_once_then_read_from_the_cache(tmp_path,
+                                                                          monkeypatch):
+    """The moment arms of a model (its file, the spec, the measuring code, OpenSim's
+    version) are kept in the cache: with them there, no OpenSim process runs; a model that
+    differs by one byte has a cache file of its own, and an unreadable cache file is
+    measured again, not trusted."""
+    import json
+
+    from nmt_ros.model.subject import moment_arm_spec
+    from nmt_ros.osim import subject_process
+
+    monkeypatch.setenv('NMT_CACHE_DIR', str(tmp_path / 'cache'))
+    model = tmp_path / 'final.osim'
+    model.write_bytes((REAL / 'Models' / 'final.osim').read_bytes())
+    spec = moment_arm_spec()
+    cached = subject_process.moment_arms_cache_file(model, spec)
+    assert cached.parent.name == 'osim' and cached.parent.parent == tmp_path / 'cache'
+    arms = {'planted': [1.0, 2.0]}
+    cached.write_text(json.dumps(arms))
+
+    def no_opensim(args: list[str]) -> None:
+        raise AssertionError(f'OpenSim ran: {args}')
+
+    monkeypatch.setattr(subject_process, '_run', no_opensim)
+    assert subject_process.subject_moment_arms(model, spec) == arms
+    # another model (one byte more) or another spec: another file
+    other = tmp_path / 'other.osim'
+    other.write_bytes(model.read_bytes() + b' ')
+    assert subject_process.moment_arms_cache_file(other, spec) != cached
+    assert subject_process.moment_arms_cache_file(model, {**spec, 'x': 1}) != cached
+    # a half-written cache file is not trusted: OpenSim runs again
+    cached.write_text('{"planted": [1.0,')
+    with pytest.raises(AssertionError, match='OpenSim ran'):
+        subject_process.subject_moment_arms(model, spec)

@@ -2,6 +2,7 @@
 casadi): ``python -m nmt_ros.osim.subject`` measures a model and poses it along an IK file."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -45,11 +46,48 @@ def ik_landmarks(model: str | os.PathLike, ik: str | os.PathLike) -> dict[str, n
 
 def subject_moment_arms(model: str | os.PathLike, spec: dict) -> dict:
     """``python -m nmt_ros.osim.subject moment-arms`` on a model (see
-    ``nmt_ros.osim.subject.group_moment_arms`` for ``spec`` and the result)."""
+    ``nmt_ros.osim.subject.group_moment_arms`` for ``spec`` and the result), kept in the
+    machine's cache (``moment_arms_cache_file``): they depend on the model file, the spec,
+    the code that measures them and OpenSim's version alone, not on the trial, and cost
+    ~100 s of OpenSim per model on a 2-core machine, so the trials of one subject after
+    the first import in seconds."""
     if not Path(model).exists():
         raise ValueError(f'{model}: no such model file')
+    cached = moment_arms_cache_file(model, spec)
+    try:
+        return json.loads(cached.read_text())
+    except (OSError, ValueError):        # not cached yet (or unreadable): measured again
+        pass
     with tempfile.TemporaryDirectory() as tmp:
         spec_file, out = Path(tmp) / 'spec.json', Path(tmp) / 'arms.json'
         spec_file.write_text(json.dumps(spec))
         _run(['moment-arms', '--model', str(model), '--spec', str(spec_file), '--out', str(out)])
-        return json.loads(out.read_text())
+        text = out.read_text()
+        arms = json.loads(text)
+    try:                                  # written whole, then renamed: never half a file
+        staged = cached.with_suffix(f'.{os.getpid()}.tmp')
+        staged.write_text(text)
+        os.replace(staged, cached)
+    except OSError:
+        pass
+    return arms
+
+
+def moment_arms_cache_file(model: str | os.PathLike, spec: dict) -> Path:
+    """Where ``subject_moment_arms`` keeps a model's moment arms: a file in the cache
+    (``model.compiled.cache_dir``'s root, ``osim/``) named by the hash of the model file's
+    bytes, the spec, the measuring code and OpenSim's installed version."""
+    from importlib import metadata
+
+    from nmt_ros.model.compiled import cache_dir
+
+    try:
+        opensim = metadata.version('opensim')
+    except metadata.PackageNotFoundError:
+        opensim = 'unknown'
+    code = (Path(__file__).parent / 'subject.py').read_bytes()
+    digest = hashlib.sha256(Path(model).read_bytes() + json.dumps(spec, sort_keys=True).encode()
+                            + code + opensim.encode()).hexdigest()
+    folder = cache_dir().parent / 'osim'
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f'moment_arms_{digest[:24]}.json'
