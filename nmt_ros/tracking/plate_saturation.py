@@ -37,8 +37,7 @@ class PlateSaturation:
         """``min_level`` [per channel, the channel's unit]: readings below it in magnitude
         are never taken for saturation (``inf``: the channel is not checked)."""
         self.min_level = np.asarray(min_level, dtype=float)
-        self.previous: np.ndarray | None = None
-        self._previous: list[float] | None = None      # the same as Python floats
+        self.previous: list[float] | None = None     # the previous sample's readings
         self._floor = self.min_level.tolist()
         self.levels: list[set[float]] = [set() for _ in self.min_level]
         self.saturated = np.zeros(self.min_level.size, dtype=np.int64)  # samples per channel
@@ -63,7 +62,7 @@ class PlateSaturation:
         y = np.array(y, dtype=float)
         self.newly_held = None
         # the common case (no channel high) in Python floats and ints
-        values, floor, previous = y.tolist(), self._floor, self._previous
+        values, floor, previous = y.tolist(), self._floor, self.previous
         high = False
         for c, v in enumerate(values):
             mag = abs(v)
@@ -76,9 +75,8 @@ class PlateSaturation:
             self.samples += 1
             if self.samples % HELD_EVERY == 0:
                 self._judge_held()
-        self._previous = values
+        self.previous = values
         if not high:
-            self.previous = y
             self.in_run = False
             return self._none, self._none, False
         mag = np.abs(y)
@@ -89,10 +87,9 @@ class PlateSaturation:
             v = float(y[c])
             if v in self.levels[c]:
                 now[c] = True
-            elif self.previous is not None and v == self.previous[c]:
+            elif previous is not None and v == previous[c]:
                 now[c] = before[c] = True
                 self.levels[c].add(v)
-        self.previous = y
         self.saturated += now + before
         begins = bool(now.any()) and not self.in_run
         self.in_run = bool(now.any())

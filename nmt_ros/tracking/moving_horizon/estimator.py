@@ -480,8 +480,7 @@ class MovingHorizonEstimator:
         """The newest ``relinearise_s`` of segments, plus ``relinearise_older`` older ones in
         turn (a deterministic round robin)."""
         st, w = self.settings, self.window
-        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
-        newest = np.arange(max(w.first, w.last - n_new + 1), w.last + 1)
+        newest = self._newest_segments()
         older = np.arange(w.first, newest[0])
         pick = []
         for _ in range(min(st.relinearise_older, older.size)):
@@ -496,13 +495,17 @@ class MovingHorizonEstimator:
         angles' nine to one: a window that fits the wrench and has left its angles (a
         landing whose shank and thigh sat 30 deg off the mocap for 0.3 s, angle rows at
         20-85 per row) scored 3-8 together."""
-        st, w = self.settings, self.window
-        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
-        kept = w.rows(np.arange(max(w.first, w.last - n_new + 1), w.last + 1))
+        kept = self.window.rows(self._newest_segments())
         both = float(kept[:, 0].sum() + kept[:, 2].sum()) / max(
             float(kept[:, 1].sum() + kept[:, 3].sum()), 1.0)
         angles = float(kept[:, 0].sum()) / max(float(kept[:, 1].sum()), 1.0)
         return max(both, angles)
+
+    def _newest_segments(self) -> np.ndarray:
+        """The window's newest ``relinearise_s`` of segments (global indices, at least one)."""
+        st, w = self.settings, self.window
+        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
+        return np.arange(max(w.first, w.last - n_new + 1), w.last + 1)
 
     def _rescue_iterations(self) -> int:
         """The rescue's iterations at this update: ``rescue_iterations``, at most
@@ -511,8 +514,7 @@ class MovingHorizonEstimator:
         st, w = self.settings, self.window
         if st.still_rescue_iterations >= st.rescue_iterations:
             return st.rescue_iterations
-        n_new = max(1, int(np.ceil(st.relinearise_s * st.knot_rate_hz)))
-        if w.still_segments(np.arange(max(w.first, w.last - n_new + 1), w.last + 1)).all():
+        if w.still_segments(self._newest_segments()).all():
             return st.still_rescue_iterations
         return st.rescue_iterations
 
