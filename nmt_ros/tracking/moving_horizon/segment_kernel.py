@@ -8,10 +8,10 @@ fall in it and of its two Gauss points. The kernel computes, for one segment,
 
 with the Huber weights of the samples, the contact points' load shares and weights held at
 their current values (iteratively reweighted least squares: they scale rows, they are not
-differentiated). CasADi builds r and J symbolically (SX) and the products J'J, J'r as sparse
-matrix products (MX); both are generated as C and compiled once (``nmt_ros.model.compiled``),
-then mapped over the segments of an update. Samples are passed padded to a fixed capacity per
-segment with a 0/1 mask (padding and NaN channels carry no weight).
+differentiated). CasADi builds r, J and the products J'J, J'r symbolically (SX), generated as
+C and compiled once (``nmt_ros.model.compiled``), then mapped over the segments of an update.
+Samples are passed padded to a fixed capacity per segment with a 0/1 mask (padding and NaN
+channels carry no weight).
 """
 from __future__ import annotations
 
@@ -202,12 +202,17 @@ def build_kernel(model: JumperModel, spec: KernelSpec) -> ca.Function:
                           [r_all, J, a_cost, ca.sum1(m_a), w_cost, ca.sum1(m_w)],
                           names, ['r', 'J', 'a_cost', 'a_rows', 'w_cost', 'w_rows'],
                           {'cse': True})
-    mx_in = [ca.MX.sym(n, x.shape[0]) for n, x in zip(names, inputs)]
-    r, Jm, ac, ar, wc, wr = rows_fn(*mx_in)
-    H = ca.densify(ca.mtimes(Jm.T, Jm))
-    g = ca.densify(-ca.mtimes(Jm.T, r))
-    kernel = ca.Function('mhe_segment', mx_in, [H, g, 0.5 * ca.sumsqr(r), ac, ar, wc, wr],
-                         names, ['H', 'g', 'cost', 'a_cost', 'a_rows', 'w_cost', 'w_rows'])
+    # J'J and J'r as SX products of the rows' expressions, J'J's upper triangle mirrored (a
+    # product commutes exactly, so the mirror equals the lower triangle's own sums): the same
+    # sums in the same order as the sparse MX product used until 2026-12-07 (outputs bit for
+    # bit the same), as straight-line code without its index loops, transposes and copies
+    sx_in = [ca.SX.sym(n, x.shape[0]) for n, x in zip(names, inputs)]
+    r, Js, ac, ar, wc, wr = rows_fn(*sx_in)
+    H = ca.densify(ca.triu2symm(ca.triu(ca.mtimes(Js.T, Js))))
+    g = ca.densify(-ca.mtimes(Js.T, r))
+    kernel = ca.Function('mhe_segment', sx_in, [H, g, 0.5 * ca.sumsqr(r), ac, ar, wc, wr],
+                         names, ['H', 'g', 'cost', 'a_cost', 'a_rows', 'w_cost', 'w_rows'],
+                         {'cse': True})
     return compiled(kernel)
 
 

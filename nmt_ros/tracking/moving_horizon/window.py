@@ -116,6 +116,7 @@ class SlidingWindow:
         # step from there needs no re-linearisation of the same segments
         self._fresh: tuple[np.ndarray, np.ndarray, tuple] | None = None
         self._data_version = 0
+        self._packed_of: tuple[tuple, tuple] | None = None    # ``_packed``
         # priors relaxed around landings (``prior_relaxation``): the vertical force [N] whose
         # upward crossing is a landing (inf: none), how far [s] around one a segment counts
         # as near it, and the SD multipliers there (wrench 2nd derivative, excitation rate)
@@ -374,6 +375,18 @@ class SlidingWindow:
             offset += capacity
         return batches
 
+    def _packed(self, segments: np.ndarray) -> tuple[list, list]:
+        """The samples of ``segments`` packed for the kernel (``_pack``: angles, wrench), kept
+        for the next call on the same segments and data (the rescue's checked iterations
+        evaluate the same segments several times an update)."""
+        key = (self._data_version, self.first, segments.tobytes())
+        if self._packed_of is None or self._packed_of[0] != key:
+            kern = self.kernel
+            self._packed_of = (key, (
+                self._pack(self.angles, segments, kern.angle_capacity, 4),
+                self._pack(self.wrench, segments, kern.wrench_capacity, 3)))
+        return self._packed_of[1]
+
     def evaluate(self, segments: np.ndarray, C: np.ndarray, plate: np.ndarray,
                  dynamics_scale: float = 1.0) -> Linearisation:
         """Linearise the residuals of ``segments`` (global) at (C, plate) with the compiled
@@ -381,8 +394,7 @@ class SlidingWindow:
         segments = np.asarray(segments, dtype=np.int64)
         kern = self.kernel
         S = segments.size
-        ang = self._pack(self.angles, segments, kern.angle_capacity, 4)
-        wr = self._pack(self.wrench, segments, kern.wrench_capacity, 3)
+        ang, wr = self._packed(segments)
         z = self.points_of(segments, C, plate)
         relax = self.prior_relaxation(segments)
         n = NB + NX
