@@ -37,7 +37,7 @@ from nmt_ros.model.point_map import PointMap
 from nmt_ros.model.squat import rest_activations
 from nmt_ros.records import SKTResult
 from nmt_ros.tracking.frame_clock import FrameClock
-from nmt_ros.tracking.moving_horizon import normal_equations
+from nmt_ros.tracking.moving_horizon import normal_equations, window
 from nmt_ros.tracking.moving_horizon.point_functions import excitation, output_function
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV, NX, PLATE
 from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKernel, capacity
@@ -119,7 +119,8 @@ class MovingHorizonEstimator:
             support_sd=st.contact_support_sd_m,
             free_foot_sd=float(np.radians(st.free_foot_angle_sd_deg)))
         self.kernel = SegmentKernel(model, self.kernel_spec)
-        normal_equations.warm_up()
+        normal_equations.warm_up()       # the compiled (numba) loops loaded now
+        window.warm_up()
         self.outputs = PointMap(compiled(output_function(model)))
         self.plate_sd = np.asarray(st.plate_sd, dtype=float)
         # the highest the ankle can be above its standing height with a contact point on the
