@@ -72,6 +72,10 @@ def main() -> int:
     out = Path(args.out or tempfile.mkdtemp(prefix='graph_pairs_'))
     out.mkdir(parents=True, exist_ok=True)
     trees = {}
+    # a run killed by a signal skips the removal below: its worktree's registration stays
+    # behind and would refuse the same path; forget registrations whose directory is gone
+    subprocess.run(['git', '-C', str(ROOT), 'worktree', 'prune'], check=True,
+                   capture_output=True)
     for label, rev in (('before', args.before), ('after', args.after)):
         if label == 'after' and rev == 'HEAD':
             trees[label] = ROOT
