@@ -15,7 +15,9 @@ are banded (``normal_equations``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
+import numba
 import numpy as np
 
 
@@ -64,8 +66,47 @@ def evaluate(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, orders: i
     """Spline values [P, orders, k] at instants t from control points C [n, k] whose first
     one has global index ``first``; orders = 1 (value), 2 (+ rate) or 3 (+ acceleration)."""
     j, u = grid.locate(t)
-    B = basis(u, grid.dt, orders)
     idx = (j - first)[:, None] + np.arange(4)[None, :]
     if idx.min() < 0 or idx.max() >= C.shape[0]:
         raise IndexError('instants outside the control points given')
-    return np.einsum('pok,pkv->pov', B, C[idx])
+    if not 1 <= orders <= 3:
+        raise ValueError('orders must be 1, 2 or 3')
+    return _evaluate(np.ascontiguousarray(C, dtype=float), j - first, u, grid.dt,
+                     grid.dt ** 2, orders)
+
+
+@numba.njit(cache=True)
+def _evaluate(C: np.ndarray, j: np.ndarray, u: np.ndarray, dt: float, dt2: float,
+              orders: int) -> np.ndarray:
+    """``evaluate`` compiled (numba; as numpy, ``basis`` and an einsum, it was 5 % of the
+    moving-horizon estimator's time in per-call overhead): the weights as ``basis`` forms
+    them, operation for operation (a cube through ``pow`` as numpy's, the 1/dt^k then the
+    1/6), summed over the four control points in order as the einsum does."""
+    P, V = u.size, C.shape[1]
+    out = np.zeros((P, orders, V))
+    w = np.empty(4)
+    for p in range(P):
+        x = u[p]
+        x2, x3 = x * x, x * x * x
+        for o in range(orders):
+            if o == 0:
+                w[0] = math.pow(1 - x, 3.0)
+                w[1] = 3 * x3 - 6 * x2 + 4
+                w[2] = -3 * x3 + 3 * x2 + 3 * x + 1
+                w[3] = x3
+            elif o == 1:
+                w[0] = -3 * ((1 - x) * (1 - x)) / dt
+                w[1] = (9 * x2 - 12 * x) / dt
+                w[2] = (-9 * x2 + 6 * x + 3) / dt
+                w[3] = (3 * x2) / dt
+            else:
+                w[0] = (6 * (1 - x)) / dt2
+                w[1] = (18 * x - 12) / dt2
+                w[2] = (-18 * x + 6) / dt2
+                w[3] = (6 * x) / dt2
+            for k in range(4):
+                b = w[k] / 6.0
+                row = j[p] + k
+                for v in range(V):
+                    out[p, o, v] += b * C[row, v]
+    return out

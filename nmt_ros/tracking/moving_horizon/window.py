@@ -656,9 +656,11 @@ def _as_slice(index: np.ndarray) -> slice | np.ndarray:
 
 
 def warm_up() -> None:
-    """Load (or compile) ``_still_blocks`` now, not in a stream's first window."""
+    """Load (or compile) the compiled loops of the window (``_still_blocks``, the spline's
+    ``evaluate``) now, not in a stream's first window."""
     _still_blocks(np.zeros(2, dtype=np.int64), 1, np.ones((2, 3)), 0.0, 1,
                   np.zeros(1, dtype=np.int64), np.ones(3))
+    evaluate(np.zeros((4, NV)), 0, KnotGrid(0.0, 0.01), np.zeros(1), 3)
 
 
 @numba.njit(cache=True)
