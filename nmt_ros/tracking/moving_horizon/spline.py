@@ -25,18 +25,52 @@ def basis(u: np.ndarray, dt: float, orders: int = 4) -> np.ndarray:
     """Weights [P, orders, 4 control points]: value and the first ``orders`` - 1 time
     derivatives (1/s^k, at most the 3rd) of the four control points active at local
     coordinates ``u`` [P] in [0, 1)."""
-    u = np.asarray(u, dtype=float)
-    u2, u3 = u * u, u * u * u
-    rows = [np.stack([(1 - u) ** 3, 3 * u3 - 6 * u2 + 4, -3 * u3 + 3 * u2 + 3 * u + 1, u3], -1)]
-    if orders > 1:
-        rows.append(np.stack([-3 * (1 - u) ** 2, 9 * u2 - 12 * u, -9 * u2 + 6 * u + 3, 3 * u2],
-                             -1) / dt)
-    if orders > 2:
-        rows.append(np.stack([6 * (1 - u), 18 * u - 12, -18 * u + 6, 6 * u], -1) / dt ** 2)
-    if orders > 3:
-        rows.append(np.broadcast_to(np.array([-6.0, 18.0, -18.0, 6.0]) / dt ** 3,
-                                    u.shape + (4,)))
-    return np.stack(rows, 1) / 6.0
+    if not 1 <= orders <= 4:
+        raise ValueError('orders must be 1 to 4')
+    u = np.ascontiguousarray(u, dtype=float)
+    out = _basis_rows(u.reshape(-1), dt, dt ** 2, dt ** 3, orders)
+    return out.reshape(u.shape + (orders, 4))
+
+
+@numba.njit(cache=True)
+def _weights(x: float, dt: float, dt2: float, dt3: float, order: int, w: np.ndarray) -> None:
+    """The four weights of ``order`` (0: value .. 3: 3rd derivative) at local coordinate x,
+    into w [4]: the cubic B-spline's (1 - x)^3, 3x^3 - 6x^2 + 4, -3x^3 + 3x^2 + 3x + 1, x^3
+    and their derivatives, over dt^order, over 6. The one definition of the weights
+    (``basis``, ``evaluate``); the cube through ``pow`` and these operations in this order
+    are numpy's of the formulas as written (bit for bit the weights before 2026-12-07)."""
+    x2, x3 = x * x, x * x * x
+    if order == 0:
+        w[0] = math.pow(1 - x, 3.0)
+        w[1] = 3 * x3 - 6 * x2 + 4
+        w[2] = -3 * x3 + 3 * x2 + 3 * x + 1
+        w[3] = x3
+    elif order == 1:
+        w[0] = -3 * ((1 - x) * (1 - x)) / dt
+        w[1] = (9 * x2 - 12 * x) / dt
+        w[2] = (-9 * x2 + 6 * x + 3) / dt
+        w[3] = (3 * x2) / dt
+    elif order == 2:
+        w[0] = (6 * (1 - x)) / dt2
+        w[1] = (18 * x - 12) / dt2
+        w[2] = (-18 * x + 6) / dt2
+        w[3] = (6 * x) / dt2
+    else:
+        w[0] = -6.0 / dt3
+        w[1] = 18.0 / dt3
+        w[2] = -18.0 / dt3
+        w[3] = 6.0 / dt3
+    for k in range(4):
+        w[k] = w[k] / 6.0
+
+
+@numba.njit(cache=True)
+def _basis_rows(u: np.ndarray, dt: float, dt2: float, dt3: float, orders: int) -> np.ndarray:
+    out = np.empty((u.size, orders, 4))
+    for p in range(u.size):
+        for o in range(orders):
+            _weights(u[p], dt, dt2, dt3, o, out[p, o])
+    return out
 
 
 @dataclass(frozen=True)
@@ -79,34 +113,16 @@ def evaluate(C: np.ndarray, first: int, grid: KnotGrid, t: np.ndarray, orders: i
 def _evaluate(C: np.ndarray, j: np.ndarray, u: np.ndarray, dt: float, dt2: float,
               orders: int) -> np.ndarray:
     """``evaluate`` compiled (numba; as numpy, ``basis`` and an einsum, it was 5 % of the
-    moving-horizon estimator's time in per-call overhead): the weights as ``basis`` forms
-    them, operation for operation (a cube through ``pow`` as numpy's, the 1/dt^k then the
-    1/6), summed over the four control points in order as the einsum does."""
+    moving-horizon estimator's time in per-call overhead): ``_weights`` summed over the
+    four control points in order, as the einsum did."""
     P, V = u.size, C.shape[1]
     out = np.zeros((P, orders, V))
     w = np.empty(4)
     for p in range(P):
-        x = u[p]
-        x2, x3 = x * x, x * x * x
         for o in range(orders):
-            if o == 0:
-                w[0] = math.pow(1 - x, 3.0)
-                w[1] = 3 * x3 - 6 * x2 + 4
-                w[2] = -3 * x3 + 3 * x2 + 3 * x + 1
-                w[3] = x3
-            elif o == 1:
-                w[0] = -3 * ((1 - x) * (1 - x)) / dt
-                w[1] = (9 * x2 - 12 * x) / dt
-                w[2] = (-9 * x2 + 6 * x + 3) / dt
-                w[3] = (3 * x2) / dt
-            else:
-                w[0] = (6 * (1 - x)) / dt2
-                w[1] = (18 * x - 12) / dt2
-                w[2] = (-18 * x + 6) / dt2
-                w[3] = (6 * x) / dt2
+            _weights(u[p], dt, dt2, 0.0, o, w)
             for k in range(4):
-                b = w[k] / 6.0
                 row = j[p] + k
                 for v in range(V):
-                    out[p, o, v] += b * C[row, v]
+                    out[p, o, v] += w[k] * C[row, v]
     return out
