@@ -45,6 +45,7 @@ from nmt_ros.nodes.input_thread import InputThread
 from nmt_ros.nodes.node_status import ERROR, OK, WARN, NodeStatus, Report
 from nmt_ros.nodes.polled_subscriptions import PolledSubscriptions
 from nmt_ros.nodes.readiness import missing_subscribers, parse_wait_for
+from nmt_ros.nodes.thread_policy import MIDDLEWARE_THREAD_PREFIXES, BatchThreads
 from nmt_ros.topics import STATUS
 
 STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
@@ -67,6 +68,9 @@ def to_records(reports: Sequence[Report]) -> list[StatusRecord]:
 class NmtNode(Node):
     """Base of the nmt_ros nodes: parameters, status, readiness gate, done/exit code."""
 
+    #: default of ``batch_thread_prefixes`` (``thread_policy``)
+    BATCH_THREAD_PREFIXES: tuple[str, ...] = MIDDLEWARE_THREAD_PREFIXES
+
     def __init__(self, name: str, *, exit_default: bool = False, gated: bool = True,
                  **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
@@ -80,6 +84,12 @@ class NmtNode(Node):
             'qos_depth', 5000, 'KEEP_LAST depth of the data topics (publishers and '
             'subscriptions); the backlog a slow reader may build without loss', low=1,
             high=1_000_000)
+        self.batch_threads = BatchThreads(self.param(
+            'batch_thread_prefixes', list(self.BATCH_THREAD_PREFIXES) or [''], "this "
+            "process's threads whose names start with these run under Linux's SCHED_BATCH, "
+            "so their wake-ups stop preempting the node's computation (the middleware's: Fast "
+            "DDS 'dds.*'; [''] = none; nmt_ros.nodes.thread_policy)"))
+        self.batch_threads.apply()
         self.wait_for_spec = self.param(
             'wait_for', [''], "outputs that must have subscribers before inputs are opened: "
             "'/topic=N' entries ('' = none)") if gated else []
@@ -134,6 +144,7 @@ class NmtNode(Node):
 
     def publish_status(self, extra: Sequence[Report] = ()) -> None:
         self._last_status = time.monotonic()
+        self.batch_threads.apply()       # the middleware may have started more threads
         self.status_values()
         reports = self.status.reports() + list(extra)
         self.status_pub.publish(to_diagnostic_array(self.get_clock().now().nanoseconds,

@@ -67,6 +67,11 @@ def is_hidden(topic: str) -> bool:
 class RecorderNode(NmtNode):
     """Raw, QoS-adapting, polled recorder of all topics (see the module docstring)."""
 
+    #: the middleware's threads keep the default policy here: they stamp each message's
+    #: receive time, the recording's log time and the clock the graph's latencies are read
+    #: on; under SCHED_BATCH a stamp could wait for a scheduler tick
+    BATCH_THREAD_PREFIXES: tuple[str, ...] = ()
+
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.param
