@@ -90,3 +90,38 @@ def test_a_node_puts_the_middlewares_threads_under_batch(ros_context) -> None:
         assert os.sched_getscheduler(os.getpid()) == os.SCHED_OTHER
     finally:
         node.destroy_node()
+
+
+def _refuse(tid: int, policy: int, param: object) -> None:
+    raise PermissionError(1, 'Operation not permitted')
+
+
+def test_a_refusal_is_kept_and_the_thread_keeps_its_policy(monkeypatch) -> None:
+    thread = NamedThread('dds.probe.4')
+    try:
+        batch = BatchThreads(('dds.probe.4',))
+        monkeypatch.setattr(os, 'sched_setscheduler', _refuse)
+        assert batch.apply() == 0
+        assert 'dds.probe.4' in batch.failed[thread.tid]
+        assert thread.policy() == os.SCHED_OTHER
+        monkeypatch.undo()
+        assert batch.apply() == 0                    # refused once: not retried
+    finally:
+        thread.close()
+
+
+def test_a_node_reports_a_refusal_once_and_works_on(ros_context, monkeypatch) -> None:
+    from nmt_ros.nodes.node_base import NmtNode
+    from nmt_ros.nodes.node_status import WARN
+
+    monkeypatch.setattr(os, 'sched_setscheduler', _refuse)
+    node = NmtNode('thread_policy_refused', context=ros_context)
+    try:
+        node.publish_status()
+        node.publish_status()
+        warned = [e for e in node.status.events
+                  if e.level == WARN and 'SCHED_BATCH refused' in e.message]
+        assert len(warned) == 1, node.status.events
+        assert 'dds.' in warned[0].message
+    finally:
+        node.destroy_node()

@@ -89,7 +89,8 @@ class NmtNode(Node):
             "process's threads whose names start with these run under Linux's SCHED_BATCH, "
             "so their wake-ups stop preempting the node's computation (the middleware's: Fast "
             "DDS 'dds.*'; [''] = none; nmt_ros.nodes.thread_policy)"))
-        self.batch_threads.apply()
+        self._batch_refusals = 0
+        self.batch_middleware_threads()
         self.wait_for_spec = self.param(
             'wait_for', [''], "outputs that must have subscribers before inputs are opened: "
             "'/topic=N' entries ('' = none)") if gated else []
@@ -142,9 +143,20 @@ class NmtNode(Node):
         if time.monotonic() - self._last_status >= min_interval_s:
             self.publish_status()
 
+    def batch_middleware_threads(self) -> None:
+        """Put new ``batch_thread_prefixes`` threads under SCHED_BATCH (``thread_policy``); a
+        refusal by the system is reported once per thread (a warning: they keep their
+        policy, the node works on)."""
+        self.batch_threads.apply()
+        failed = list(self.batch_threads.failed.values())
+        if len(failed) > self._batch_refusals:
+            self.status.event(WARN, 'threads kept their scheduling policy (SCHED_BATCH '
+                              f"refused): {'; '.join(failed[self._batch_refusals:])}")
+            self._batch_refusals = len(failed)
+
     def publish_status(self, extra: Sequence[Report] = ()) -> None:
         self._last_status = time.monotonic()
-        self.batch_threads.apply()       # the middleware may have started more threads
+        self.batch_middleware_threads()      # the middleware may have started more threads
         self.status_values()
         reports = self.status.reports() + list(extra)
         self.status_pub.publish(to_diagnostic_array(self.get_clock().now().nanoseconds,

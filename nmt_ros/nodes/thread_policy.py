@@ -31,7 +31,8 @@ MIDDLEWARE_THREAD_PREFIXES = ('dds.',)
 class BatchThreads:
     """Puts this process's threads whose names start with ``prefixes`` under SCHED_BATCH;
     :meth:`apply` again after the middleware may have started more (it remembers which are
-    done). The process's main thread is never changed."""
+    done). The process's main thread is never changed. ``failed``: thread id -> why the
+    system refused (the thread keeps its policy)."""
 
     def __init__(self, prefixes: Sequence[str] = MIDDLEWARE_THREAD_PREFIXES) -> None:
         self.prefixes = tuple(p for p in prefixes if p)
@@ -55,7 +56,9 @@ class BatchThreads:
                 continue
             try:
                 os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))
-            except OSError as exc:        # the thread ended meanwhile, or a policy refused
+            except ProcessLookupError:    # the thread ended meanwhile
+                continue
+            except OSError as exc:        # refused (a sandbox's policy): kept, reported
                 self.failed[tid] = f'{name}: {exc}'
                 continue
             self.done.add(tid)
