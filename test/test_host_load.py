@@ -11,12 +11,14 @@ from nmt_ros.study.host_load import (
     cpu_times,
     format_host_load,
     host_load,
+    parse_context_switches,
     parse_proc_stat,
 )
 
 STAT = """cpu  1000 50 200 5000 100 10 40 300 0 0
 cpu0 500 25 100 2500 50 5 20 150 0 0
 intr 12345
+ctxt 987654321
 """
 
 
@@ -58,3 +60,43 @@ def test_a_busy_loop_of_our_own_counts_as_ours():
     assert after.busy_s - before.busy_s >= ours_s - 0.05     # the machine counted it too
     h = host_load(before, after)
     assert h['ours_cores'] == pytest.approx(ours_s / (after.wall_s - before.wall_s), abs=2e-3)
+
+
+def test_context_switches_per_second():
+    assert parse_context_switches(STAT) == 987654321
+    assert parse_context_switches('cpu 1 2 3 4\n') == 0
+    a = CpuTimes(busy_s=1.0, idle_s=1.0, steal_s=0.0, ours_s=0.0, wall_s=100.0, cores=2,
+                 context_switches=1_000_000)
+    b = CpuTimes(busy_s=2.0, idle_s=2.0, steal_s=0.0, ours_s=0.0, wall_s=104.0, cores=2,
+                 context_switches=1_048_000)
+    h = host_load(a, b)
+    assert h['context_switches_per_s'] == 12_000
+    assert '12,000 context switches/s' in format_host_load(h)
+
+
+def test_a_thread_ping_pong_counts_its_switches():
+    """N hand-overs between two threads that each block until handed the turn: at least N
+    context switches on the machine's counter, whatever else ran."""
+    import threading
+
+    before = cpu_times()
+    if before is None or not before.context_switches:
+        pytest.skip('no ctxt in /proc/stat')
+    n = 2000
+    ping, pong = threading.Event(), threading.Event()
+
+    def other() -> None:
+        for _ in range(n):
+            ping.wait()
+            ping.clear()
+            pong.set()
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    for _ in range(n):
+        ping.set()
+        pong.wait()
+        pong.clear()
+    thread.join()
+    after = cpu_times()
+    assert after.context_switches - before.context_switches >= n
