@@ -5,10 +5,10 @@ and ``dds.udp.*`` receivers, ...), each waking for a few microseconds per messag
 graph's ~4,400 messages/s on a 2-core machine, those wake-ups preempted the computation on
 their core (2026-12-07, ``nmt demo``, ~65 s into the run): the skeletal tracker's main thread
 had been switched out involuntarily 166,000 times, its own ``dds.*`` threads had woken
-199,000 times, the machine did 22,000-25,000 context switches a second (``vmstat``), and the
-estimator's updates cost the node 29.0 s of thread CPU against 18.9-20.9 s offline on the
-same data (a probe timing ``MovingHorizonEstimator.poll`` in both): each preemption costs
-the computation its caches.
+199,000 times, and the machine did 22,000-25,000 context switches a second (``vmstat``).
+Each preemption costs the computation its caches (``bench/bench_preemption.py``, below);
+with these threads under SCHED_BATCH the graph used 8-10 % less CPU for the same estimates
+(README "The live graph").
 
 Linux's ``SCHED_BATCH`` marks a thread whose wake-up does not preempt the running one: it
 runs on an idle core at once, else at the next scheduler tick (4 ms here) or when the running
