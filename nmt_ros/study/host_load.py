@@ -73,8 +73,8 @@ def cpu_times(proc_stat: Path = Path('/proc/stat')) -> CpuTimes | None:
 def host_load(before: CpuTimes, after: CpuTimes) -> dict[str, float | int | bool]:
     """Cores busy between two samples [cores = CPU s per s of wall time]: in all, ours,
     others'; steal as a percentage of the machine's CPU time; context switches per second;
-    ``busy``: others or steal
-    above the thresholds (``BUSY_OTHER_CORES``, ``BUSY_STEAL_PCT``)."""
+    ``busy``: others or steal above the thresholds (``BUSY_OTHER_CORES``,
+    ``BUSY_STEAL_PCT``)."""
     wall = max(after.wall_s - before.wall_s, 1e-9)
     busy = (after.busy_s - before.busy_s) / wall
     ours = (after.ours_s - before.ours_s) / wall
