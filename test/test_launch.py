@@ -10,6 +10,7 @@ import sys
 import time
 
 from conftest import batch_samples
+from process_groups import kill_group, popen_group
 import pytest
 
 from nmt_ros.io.bags import bag_info, read_raw, reindex
@@ -23,8 +24,8 @@ NMT = [sys.executable, '-m', 'nmt_ros.cli.main']
 
 def nmt(*args, log: Path | None = None, env: dict | None = None):
     stdout = subprocess.PIPE if log is None else open(log, 'w')  # noqa: SIM115
-    return subprocess.Popen([*NMT, *map(str, args)], stdout=stdout, stderr=subprocess.STDOUT,
-                            text=True, env={**os.environ, **(env or {})})
+    return popen_group([*NMT, *map(str, args)], stdout=stdout, stderr=subprocess.STDOUT,
+                       text=True, env={**os.environ, **(env or {})})
 
 
 def wait_for_text(path: Path, text: str, timeout_s: float) -> bool:
@@ -85,8 +86,7 @@ def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        kill_group(proc)          # its nodes too, whatever happened to the launcher
     assert proc.returncode == 130, out
     info = bag_info(record)              # metadata.yaml written: the bag was finalised
     counts = {t.name: t.message_count for t in info.topics}

@@ -25,6 +25,7 @@ from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
+from process_groups import kill_group, popen_group
 import pytest
 import websockets
 
@@ -166,7 +167,7 @@ def run_client(port: int, topics: list[str], timeout_s: float) -> FoxgloveClient
 
 def test_view_of_a_bag_serves_its_topics_and_the_scene(estimates_bag: Path) -> None:
     port = free_port()
-    proc = subprocess.Popen(NMT + ['view', '--bag', str(estimates_bag), '--view-port', str(port),
+    proc = popen_group(NMT + ['view', '--bag', str(estimates_bag), '--view-port', str(port),
                                    '--wait-for-client', '60'],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=dict(os.environ))
@@ -174,9 +175,7 @@ def test_view_of_a_bag_serves_its_topics_and_the_scene(estimates_bag: Path) -> N
         client = run_client(port, [MUSCLE_FORCES, SCENE_TOPIC], timeout_s=120)
         out, _ = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        kill_group(proc)
     assert proc.returncode == 0, out
     assert f'ws://127.0.0.1:{port}' in out
 
@@ -249,7 +248,7 @@ def test_launch_view_serves_the_graph_from_before_the_replay(tmp_path: Path) -> 
     /nmt/muscle/forces message the recorder recorded, with the same values."""
     port = free_port()
     record = tmp_path / 'rec'
-    proc = subprocess.Popen(NMT + ['launch', '--view', '--view-port', str(port), '--record',
+    proc = popen_group(NMT + ['launch', '--view', '--view-port', str(port), '--record',
                                    str(record), '--log-dir', str(tmp_path / 'logs')],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=dict(os.environ))
@@ -257,9 +256,7 @@ def test_launch_view_serves_the_graph_from_before_the_replay(tmp_path: Path) -> 
         client = run_client(port, [MUSCLE_FORCES, SKELETAL_JOINT_TORQUES], timeout_s=200)
         out, _ = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        kill_group(proc)
     assert proc.returncode == 0, out
     for topic in (MUSCLE_FORCES, SKELETAL_JOINT_TORQUES):
         decode = client.ros_decoder(topic)
