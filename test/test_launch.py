@@ -1,5 +1,6 @@
 """The graph as separate processes: ``nmt launch`` end to end on the shipped (short) bag, at
-1x and faster, SIGINT during a launch, ``nmt run`` of single nodes and a killed recorder."""
+1x and faster, SIGINT during a launch, a launcher killed outright, ``nmt run`` of single
+nodes and a killed recorder."""
 from __future__ import annotations
 
 import os
@@ -93,6 +94,54 @@ def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
     assert 0 < counts['/force_plate/wrench'] < 269
     assert sum(1 for _ in read_raw(record, ['/mocap/segment_angles'])) == counts[
         '/mocap/segment_angles']
+
+
+def children(pid: int) -> list[int]:
+    """The running processes whose parent is ``pid`` (from ``/proc/*/stat``)."""
+    found = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid and fields[0] not in ('Z', 'X'):
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='PR_SET_PDEATHSIG')
+def test_a_killed_launcher_takes_its_nodes_and_leaves_a_readable_bag(tmp_path):
+    record, logs = tmp_path / 'rec', tmp_path / 'logs'
+    proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)  # ~5 s replay
+    try:
+        assert wait_for_text(logs / 'recorder.log', 'first message on /force_plate/wrench',
+                             120.0)
+        nodes = children(proc.pid)
+        assert len(nodes) == 4, nodes         # recorder, both trackers, the publisher
+        proc.kill()                           # SIGKILL: the launcher stops nothing itself
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 60
+        while _running(nodes) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = _running(nodes)
+    finally:
+        kill_group(proc)
+    assert not left, f'nodes still running after their launcher was killed: {left}'
+    info = bag_info(record)              # the recorder finalised the bag on its SIGTERM
+    counts = {t.name: t.message_count for t in info.topics}
+    assert 0 < counts['/force_plate/wrench'] < 269
+
+
+def _running(pids: list[int]) -> list[int]:
+    out = []
+    for pid in pids:
+        try:
+            state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        if state not in ('Z', 'X'):
+            out.append(pid)
+    return out
 
 
 def test_nmt_run_single_nodes_and_a_killed_recorder(tmp_path):

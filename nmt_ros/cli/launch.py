@@ -22,7 +22,9 @@ subscriber acknowledged it), the trackers have flushed their last look-ahead/win
 exited (their outputs acknowledged too), and the recorder has taken every queued message and
 finalised the bag (SIGINT). Exit code 0 when every node succeeded, 1 otherwise, 130 when
 interrupted: SIGINT/SIGTERM to ``nmt launch`` is passed on to the nodes, so the recorder still
-closes its bag (an interrupted recording stays readable).
+closes its bag (an interrupted recording stays readable). A launcher killed outright
+(SIGKILL) takes its nodes with it: each gets SIGTERM from Linux when it dies
+(``nmt_ros.nodes.launcher_link``), and the recorder still finalises its bag.
 
 The parameters are ``config/nmt_graph.yaml`` (or ``--params FILE``, same shape: one
 ``<node>: ros__parameters:`` section per node) with the command-line choices and the
@@ -46,6 +48,7 @@ from typing import Any
 
 import yaml
 
+from nmt_ros.nodes.launcher_link import launched_environment
 from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
@@ -271,7 +274,7 @@ def run_graph(*, bag: str | os.PathLike | None = None, rate: float = 1.0,
     params_file.write_text(yaml.safe_dump(merged, sort_keys=False), encoding='utf-8')
     names = [n for n in NODES if (n != 'recorder' or record is not None)
              and (n != 'viewer' or view is not None)]
-    env = ros_environment()
+    env = launched_environment(ros_environment())   # the nodes end if this process dies
     procs: dict[str, subprocess.Popen] = {}
     logs = {}
     problems: list[str] = []

@@ -3,7 +3,8 @@
 :func:`run_node` is the ``main()`` of every node: ``rclpy.init`` (with our own SIGINT/SIGTERM
 handling, so a node can finish cleanly: the recorder closes its bag, the trackers wait until
 their last messages are acknowledged), spin until the node is done or a signal arrives, then
-``destroy_node`` and ``try_shutdown``. :func:`make_executor` picks the executor. With
+``destroy_node`` and ``try_shutdown``. A node started by ``nmt launch`` also gets SIGTERM
+when the launcher dies (``launcher_link``). :func:`make_executor` picks the executor. With
 ``NMT_PROFILE_DIR`` set, the node's main thread runs under cProfile and its statistics go to
 ``$NMT_PROFILE_DIR/<node name>.prof`` when it ends (``python -m pstats FILE``: where a node's
 CPU goes, measured in the running graph).
@@ -28,6 +29,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from nmt_ros.nodes.launcher_link import end_with_launcher
 from nmt_ros.nodes.node_base import NmtNode
 
 
@@ -66,6 +68,7 @@ def run_node(factory: Callable[..., NmtNode], args: Sequence[str] | None = None,
                signal_handler_options=SignalHandlerOptions.NO)
     stop = _Stop()
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    end_with_launcher(signal.SIGTERM)      # started by `nmt launch`: end when it dies
     node = None
     profile_dir = os.environ.get('NMT_PROFILE_DIR')
     profile = cProfile.Profile() if profile_dir else None
