@@ -114,6 +114,9 @@ def main() -> int:
               f"{' '.join(f'{e:+.0f}' for e in row['jump_errors_pct'])}); low-latency torques " +
               '; '.join(f"{ph} {' / '.join(f'{v:.1f}' for v in row[f'low_latency {ph}'])}"
                         for ph in PHASES), flush=True)
+        for e in run.events:
+            if e.level == 'error':
+                print(f'  seed {seed}, t = {e.t:.3f} s: {e.message}', flush=True)
     summary = {'settings': overrides, 'seeds': rows}
     for name, fn in (('mean', _nanmean), ('worst', _nanmax)):
         summary[name] = {'restarts': float(fn([r['restarts'] for r in rows])),
