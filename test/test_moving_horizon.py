@@ -1139,3 +1139,45 @@ def test_excitation_rate_weight_auto_is_the_lab_subjects_for_a_lab_subject_only(
         excitation_rate_weight_for(-1.0, lab_subject=False)
     with pytest.raises(ValueError, match='auto'):
         excitation_rate_weight_for(float('nan'), lab_subject=True)
+
+
+def test_a_window_with_its_foot_alone_off_the_mocap_is_refit_not_given_up(stance, model):
+    """The push-off's heel rise can leave the window's foot behind the mocap while every
+    other segment is fitted (the heel held down: the contact's weights are bistable). Before
+    such a window is given up, its foot angle is refit to the mocap and iterated on; a
+    window whose other segments are off too is left to the re-initialisation."""
+    held, obs, _ = stance
+    est = MovingHorizonEstimator(model, MovingHorizonSettings())
+    a, b = obs.t_angles < 0.5, obs.t_wrench < 0.5
+    est.feed(obs.t_angles[a], obs.angles[a], obs.t_wrench[b], obs.wrench[b])
+    w, t_u = est.window, est.updated_until
+    C0 = w.C.copy()
+    rows = np.flatnonzero(w.angles.t >= w.t_start)
+
+    def foot_rms_deg() -> float:
+        foot = w.values(w.angles.t[rows], 1)[:, 0, 0]
+        return float(np.degrees(np.sqrt(np.mean((foot - held.q[0, 0]) ** 2))))
+
+    def others_deg() -> float:
+        q = w.values(w.angles.t[rows], 1)[:, 0, 1:4]
+        return float(np.degrees(np.abs(q - held.q[0, 1:4]).max()))
+
+    fitted_foot, fitted_others = foot_rms_deg(), others_deg()
+    w.C = C0.copy()
+    w.C[:, 0] += np.radians(30.0)                 # the foot alone 30 deg off
+    assert foot_rms_deg() > 25.0
+    assert est._reseed_foot(t_u, 'why') is None
+    assert 'its angle refit to the mocap' in est.events[-1].message
+    assert foot_rms_deg() < fitted_foot + 1.0, (foot_rms_deg(), fitted_foot)
+    assert others_deg() < fitted_others + 1.0, (others_deg(), fitted_others)
+    # the shank off too: the window is not refit (a re-initialisation's case)
+    w.C = C0.copy()
+    w.C[:, 0:2] += np.radians(30.0)
+    before, n_events = w.C.copy(), len(est.events)
+    assert est._reseed_foot(t_u, 'why') == 'why'
+    assert np.array_equal(w.C, before) and len(est.events) == n_events
+    # switched off
+    w.C = C0.copy()
+    w.C[:, 0] += np.radians(30.0)
+    est.settings = replace(est.settings, reseed_foot_deg=0.0)
+    assert est._reseed_foot(t_u, 'why') == 'why'

@@ -42,7 +42,7 @@ from nmt_ros.tracking.moving_horizon.point_functions import excitation, output_f
 from nmt_ros.tracking.moving_horizon.residuals import LAYOUT, NV, NX, PLATE
 from nmt_ros.tracking.moving_horizon.segment_kernel import KernelSpec, SegmentKernel, capacity
 from nmt_ros.tracking.moving_horizon.settings import MovingHorizonSettings
-from nmt_ros.tracking.moving_horizon.spline import KnotGrid
+from nmt_ros.tracking.moving_horizon.spline import KnotGrid, evaluate
 from nmt_ros.tracking.moving_horizon.window import SlidingWindow
 from nmt_ros.tracking.observation_noise import OBSERVATION_NOISE
 from nmt_ros.tracking.plate_saturation import CHANNELS, PlateSaturation
@@ -75,6 +75,10 @@ class EstimateBlock:
 
 BLOCK_FIELDS = ('t', 'q', 'qd', 'qdd', 'tau', 'tau_muscle', 'theta', 'theta_dot', 'f', 'a', 'u',
                 's')
+#: The pull of a refit foot's control points to their current values (``_reseed_foot``),
+#: against the spline basis' squared weights (~0.5 per mocap sample near a control point):
+#: it decides only the points no sample reaches.
+RESEED_PULL = 0.01
 
 
 @dataclass
@@ -418,6 +422,8 @@ class MovingHorizonEstimator:
         if why is None and not self._healthy(t_u):
             why = 'the newest observations are no longer explained'
         if why is not None:
+            why = self._reseed_foot(t_u, why)
+        if why is not None:
             self._drop_window(t_u, f'loss of control: {why}; re-initialising from the newest '
                               'observations')
             if not self._start(t_u):
@@ -453,6 +459,43 @@ class MovingHorizonEstimator:
             self.events.append(EstimatorEvent(
                 'warn', t_u, f"the update's step taken back ({why}): checked iterations "
                 'instead', {}))
+        return still
+
+    def _reseed_foot(self, t_u: float, why: str) -> str | None:
+        """Before a loss of control (``why``): a window whose foot alone has left the mocap
+        (at least ``reseed_foot_deg`` from one of the window's samples, every other segment
+        within that) has its foot's control points refit to the window's mocap foot angles
+        (least squares on the spline's basis, a light pull to the current points where
+        samples are few) and ``reseed_iterations`` checked Levenberg-Marquardt iterations on
+        the whole window, which re-linearise the contact's held weights from the refit foot.
+        Returns why the window is still unusable (None: it is usable), ``why`` itself when
+        it was not refit."""
+        st, w = self.settings, self.window
+        if st.reseed_foot_deg <= 0 or w is None:
+            return why
+        rows = np.flatnonzero(np.isfinite(w.angles.y).all(axis=1)
+                              & (w.angles.t >= w.t_start - 1e-12)
+                              & (w.angles.t <= w.t_end + 1e-12))
+        if rows.size < 4 or not np.isfinite(w.C).all():
+            return why
+        worst = self._angle_errors_deg(rows).max(axis=0)      # per segment [deg]
+        if not (np.isfinite(worst).all() and worst[0] >= st.reseed_foot_deg
+                and (worst[1:] < st.reseed_foot_deg).all()):
+            return why
+        n = w.C.shape[0]
+        B = evaluate(np.eye(n), w.first, w.grid, w.angles.t[rows], 1)[:, 0, :]
+        foot = LAYOUT['q'].start
+        C = w.C.copy()
+        C[:, foot] = np.linalg.solve(B.T @ B + RESEED_PULL * np.eye(n),
+                                     B.T @ w.angles.y[rows, 0] + RESEED_PULL * w.C[:, foot])
+        w.C = C
+        still = self._gauss_newton(t_u, np.arange(w.first, w.last + 1), True,
+                                   st.reseed_iterations)
+        self.events.append(EstimatorEvent(
+            'warn', t_u, f'the foot {worst[0]:.0f} deg from the mocap, the other segments '
+            f'within {worst[1:].max():.0f} ({why}): its angle refit to the mocap'
+            + ('' if still is None else f', still unusable ({still})'),
+            {'foot_error_deg': float(worst[0])}))
         return still
 
     def _drop_window(self, t: float, message: str, values: dict | None = None) -> None:
@@ -624,6 +667,8 @@ class MovingHorizonEstimator:
             why = undo(why)
             if why is None:
                 both, why = judged()
+        if why is not None and not final and self._reseed_foot(t_u, why) is None:
+            both, why = judged()
         if why is not None:
             if retry and not final:
                 # the window restarts on the newest data and estimates the same instants

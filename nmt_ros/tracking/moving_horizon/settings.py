@@ -333,6 +333,21 @@ class MovingHorizonSettings:
     # jump's spans: at most 10.8 deg (100 Hz, IK), 9.6 (100 Hz, markers), 20.1 (resampled
     # to 200 Hz), whose touchdown published a shank 45-64 deg off for 25 ms before this
     max_span_angle_error_deg: float = 30.0
+    # a window that would lose control with its foot alone off the mocap (its angle at least
+    # reseed_foot_deg from a sample of the window, every other segment within that) first
+    # has its foot angle refit to the window's mocap samples and reseed_iterations checked
+    # iterations on the whole window (MovingHorizonEstimator._reseed_foot; 0: off). The
+    # push-off's heel rise is bistable: a heel the window holds down with a share of the load
+    # stays held while the mocap's foot rotates on (the looped routine's 86.7 s push-off: the
+    # foot 15-32 deg off for 0.1 s, three checked iterations at every update, then a loss of
+    # control). Realisations 1-16 of bags/routine (bench/bench_estimator_seeds.py, against
+    # the same 16 without it, 2026-12-07): losses of control 4 -> 3 (realisation 8's 41.08 s
+    # take-off kept), refined torques 2.49 / 1.81 / 2.97 -> 2.49 / 1.82 / 2.97 % of peak,
+    # landings 6.70 / 6.34 / 8.45 -> 6.70 / 6.34 / 8.44, jump heights 6.34 -> 6.41 % off.
+    # Refitting every segment that was off instead (landings too): 4 -> 4, one landing
+    # floated and another kept losing control (a landing's window is lost as a whole)
+    reseed_foot_deg: float = 15.0
+    reseed_iterations: int = 20         # at most (they stop once the cost settles)
     max_rate_rad_s: float = 150.0      # segment rates
     max_force_bw: float = 15.0         # ground force magnitude
     max_translation_m: float = 3.0     # the ankle from the origin
