@@ -36,6 +36,7 @@ import argparse
 from collections.abc import Mapping
 import copy
 from dataclasses import dataclass, field
+from functools import partial
 import json
 import os
 from pathlib import Path
@@ -54,7 +55,10 @@ from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 NODES = ('viewer', 'recorder', 'muscle_tracker', 'skeletal_tracker', 'observation_publisher')
 TRACKERS = ('muscle_tracker', 'skeletal_tracker')
-RECORDER_NICE = 5
+#: Niceness of the nodes that yield the CPU when the cores are short (the others keep 0):
+#: the recorder's queues are deep, and the muscle tracker waits for the skeletal tracker's
+#: torques anyway, so the skeletal tracker, upstream of every estimate, goes first.
+NODE_NICE = {'recorder': 5, 'muscle_tracker': 3}
 
 
 def config_path(name: str) -> Path:
@@ -204,10 +208,10 @@ def _last_error(log: Path) -> str:
     return f': {errors[-1].strip()[-200:]}' if errors else ''
 
 
-def _lower_priority() -> None:
-    """The recorder yields the CPU to the trackers (its queues are deep; latency is theirs)."""
+def _lower_priority(increment: int) -> None:
+    """The node yields the CPU to the others (``NODE_NICE``)."""
     try:
-        os.nice(RECORDER_NICE)
+        os.nice(increment)
     except OSError:
         pass
 
@@ -293,7 +297,8 @@ def run_graph(*, bag: str | os.PathLike | None = None, rate: float = 1.0,
                 [sys.executable, '-m', f'nmt_ros.nodes.{name}', '--ros-args',
                  '--params-file', str(params_file)],
                 env=env, stdout=logs[name], stderr=subprocess.STDOUT,
-                preexec_fn=_lower_priority if name == 'recorder' else None)
+                preexec_fn=(partial(_lower_priority, NODE_NICE[name]) if name in NODE_NICE
+                            else None))
         deadline = start + timeout_s
         ok = _wait(procs, ('observation_publisher',), deadline, problems)
         if ok:
