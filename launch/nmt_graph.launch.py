@@ -6,7 +6,8 @@ there, ``nmt launch`` does the same with one process per node. Parameters come f
 ``config/nmt_graph.yaml``; the readiness chain (``wait_for``, ``expected_subscribers``) is set
 here as ``nmt launch`` sets it, so no message is published before its consumers exist.
 Unlike ``nmt launch``, ``ros2 launch`` keeps running after the replay (Ctrl-C ends it and the
-recorder finalises the bag).
+recorder finalises the bag). The recorder and the muscle tracker run niced as there
+(``NODE_NICE``: the skeletal tracker gets the cores first).
 """
 import os
 
@@ -16,6 +17,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
+from nmt_ros.cli.launch import NODE_NICE
 from nmt_ros.topics import MUSCLE_OUTPUTS, SKELETAL_OUTPUTS
 
 
@@ -30,9 +32,10 @@ def generate_launch_description() -> LaunchDescription:
                               description='new bag folder for the recording'),
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', profile),
         Node(package='nmt_ros', executable='recorder', name='recorder', output='screen',
+             prefix=f"nice -n {NODE_NICE['recorder']}",
              parameters=[params, {'output': LaunchConfiguration('record')}]),
         Node(package='nmt_ros', executable='muscle_tracker', name='muscle_tracker',
-             output='screen',
+             output='screen', prefix=f"nice -n {NODE_NICE['muscle_tracker']}",
              parameters=[params, {'wait_for': [f'{t}=1' for t in MUSCLE_OUTPUTS]}]),
         Node(package='nmt_ros', executable='skeletal_tracker', name='skeletal_tracker',
              output='screen', parameters=[params, {'wait_for': [f'{SKELETAL_OUTPUTS[0]}=2'] + [
