@@ -8,6 +8,10 @@ recorder closes its bag). Found by a fresh-clone CI run beside a busy loop (2026
 test that gave up on a launch killed the launcher only, and its four nodes ran on for 50
 minutes, their subscriptions changing what later tests waited for.
 
+Linux sends the signal when the *thread* that started the node ends; ``run_graph`` starts
+the nodes from the thread that calls it and waits for them there, so that thread outlives
+them.
+
 A node not started by ``nmt launch`` (``nmt run``, ``ros2 run``, a ROS 2 launch file) has
 no such variable and is left as it is. Outside Linux the request is not available and
 nothing is done.
