@@ -6,6 +6,7 @@ launch test timed out, then three tests of test_nodes.py and the view test faile
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import signal
 import subprocess
 from typing import Any
@@ -24,3 +25,27 @@ def kill_group(proc: subprocess.Popen) -> None:
     except ProcessLookupError:
         pass
     proc.wait()
+
+
+def _stat(pid: int | str) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (state first), or None."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def running(pid: int) -> bool:
+    """The process exists and is not a zombie awaiting its reaper."""
+    fields = _stat(pid)
+    return fields is not None and fields[0] not in ('Z', 'X')
+
+
+def children(pid: int) -> list[int]:
+    """The running processes whose parent is ``pid``."""
+    found = []
+    for entry in Path('/proc').glob('[0-9]*'):
+        fields = _stat(entry.name)
+        if fields is not None and int(fields[1]) == pid and fields[0] not in ('Z', 'X'):
+            found.append(int(entry.name))
+    return found

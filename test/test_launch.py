@@ -11,7 +11,7 @@ import sys
 import time
 
 from conftest import batch_samples
-from process_groups import kill_group, popen_group
+from process_groups import children, kill_group, popen_group, running
 import pytest
 
 from nmt_ros.io.bags import bag_info, read_raw, reindex
@@ -76,13 +76,21 @@ def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
             assert any('spin_once' in fn[2] for fn in stats.stats), node
 
 
-def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
+def replaying_launch(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    """(launcher, recording) of ``nmt launch --record`` at 0.05x (~5 s of replay), once the
+    replay has begun (its start waits for discovery, seconds on a loaded machine)."""
     record, logs = tmp_path / 'rec', tmp_path / 'logs'
-    proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)  # ~5 s replay
+    proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)
+    if not wait_for_text(logs / 'recorder.log', 'first message on /force_plate/wrench',
+                         120.0):
+        kill_group(proc)
+        pytest.fail('the replay did not begin within 120 s')
+    return proc, record
+
+
+def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
+    proc, record = replaying_launch(tmp_path)
     try:
-        # the replay has begun (its start waits for discovery, seconds on a loaded machine)
-        assert wait_for_text(logs / 'recorder.log', 'first message on /force_plate/wrench',
-                             120.0)
         time.sleep(1.0)   # well into the replay (269 force-plate samples in ~5 s)
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=60)
@@ -96,52 +104,24 @@ def test_sigint_during_launch_leaves_a_readable_bag(tmp_path):
         '/mocap/segment_angles']
 
 
-def children(pid: int) -> list[int]:
-    """The running processes whose parent is ``pid`` (from ``/proc/*/stat``)."""
-    found = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[1]) == pid and fields[0] not in ('Z', 'X'):
-            found.append(int(stat.parent.name))
-    return found
-
-
 @pytest.mark.skipif(not sys.platform.startswith('linux'), reason='PR_SET_PDEATHSIG')
 def test_a_killed_launcher_takes_its_nodes_and_leaves_a_readable_bag(tmp_path):
-    record, logs = tmp_path / 'rec', tmp_path / 'logs'
-    proc = nmt('launch', '--record', record, '--rate', 0.05, '--log-dir', logs)  # ~5 s replay
+    proc, record = replaying_launch(tmp_path)
     try:
-        assert wait_for_text(logs / 'recorder.log', 'first message on /force_plate/wrench',
-                             120.0)
         nodes = children(proc.pid)
         assert len(nodes) == 4, nodes         # recorder, both trackers, the publisher
         proc.kill()                           # SIGKILL: the launcher stops nothing itself
         proc.wait(timeout=30)
         deadline = time.monotonic() + 60
-        while _running(nodes) and time.monotonic() < deadline:
+        while any(running(n) for n in nodes) and time.monotonic() < deadline:
             time.sleep(0.1)
-        left = _running(nodes)
+        left = [n for n in nodes if running(n)]
     finally:
         kill_group(proc)
     assert not left, f'nodes still running after their launcher was killed: {left}'
     info = bag_info(record)              # the recorder finalised the bag on its SIGTERM
     counts = {t.name: t.message_count for t in info.topics}
     assert 0 < counts['/force_plate/wrench'] < 269
-
-
-def _running(pids: list[int]) -> list[int]:
-    out = []
-    for pid in pids:
-        try:
-            state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-        except (OSError, IndexError):
-            continue
-        if state not in ('Z', 'X'):
-            out.append(pid)
-    return out
 
 
 def test_nmt_run_single_nodes_and_a_killed_recorder(tmp_path):

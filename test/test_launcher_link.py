@@ -10,6 +10,7 @@ import sys
 import textwrap
 import time
 
+from process_groups import running
 import pytest
 
 from nmt_ros.nodes.launcher_link import LAUNCHER_PID_ENV, end_with_launcher
@@ -53,15 +54,6 @@ def wait_for_lines(path: Path, n: int, timeout_s: float = 60.0) -> list[str]:
     return path.read_text().split() if path.exists() else []
 
 
-def alive(pid: int) -> bool:
-    """Running (a zombie awaiting its reaper is not)."""
-    try:
-        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except (FileNotFoundError, IndexError):
-        return False
-    return state not in ('Z', 'X')
-
-
 def test_a_node_gets_sigterm_when_its_launcher_is_killed(tmp_path):
     out = tmp_path / 'node.txt'
     launcher = subprocess.Popen([sys.executable, '-c', LAUNCHER, NODE, str(out)],
@@ -69,14 +61,14 @@ def test_a_node_gets_sigterm_when_its_launcher_is_killed(tmp_path):
     try:
         node_pid = int(launcher.stdout.readline())
         assert wait_for_lines(out, 1) == ['linked']
-        assert alive(node_pid)
+        assert running(node_pid)
         launcher.kill()                      # SIGKILL: the launcher cleans nothing up
         launcher.wait(timeout=30)
         assert wait_for_lines(out, 2) == ['linked', 'SIGTERM']
         deadline = time.monotonic() + 30
-        while alive(node_pid) and time.monotonic() < deadline:
+        while running(node_pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not alive(node_pid)
+        assert not running(node_pid)
     finally:
         try:
             os.killpg(launcher.pid, signal.SIGKILL)
