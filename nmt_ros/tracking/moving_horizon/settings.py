@@ -340,10 +340,11 @@ class MovingHorizonSettings:
     # push-off's heel rise is bistable: a heel the window holds down with a share of the load
     # stays held while the mocap's foot rotates on (the looped routine's 86.7 s push-off: the
     # foot 15-32 deg off for 0.1 s, three checked iterations at every update, then a loss of
-    # control). Realisations 1-16 of bags/routine (bench/bench_estimator_seeds.py, against
-    # the same 16 without it, 2026-12-07): losses of control 4 -> 3 (realisation 8's 41.08 s
-    # take-off kept), refined torques 2.49 / 1.81 / 2.97 -> 2.49 / 1.82 / 2.97 % of peak,
-    # landings 6.70 / 6.34 / 8.45 -> 6.70 / 6.34 / 8.44, jump heights 6.34 -> 6.41 % off.
+    # control). Realisations 1-16 and 17-28 of bags/routine (bench/bench_estimator_seeds.py,
+    # against the same seeds without it, 2026-12-07): losses of control 4 -> 3 and 6 -> 5
+    # (the 41.08 s take-offs of realisations 8 and 17 kept), refined torques 2.49 / 1.81 /
+    # 2.97 -> 2.49 / 1.82 / 2.97 and 2.27 / 1.95 / 3.47 (unchanged) % of peak, landings
+    # 6.70 / 6.34 / 8.45 -> 6.69 / 6.34 / 8.44, jump heights 6.34 -> 6.40 % off.
     # Refitting every segment that was off instead (landings too): 4 -> 4, one landing
     # floated and another kept losing control (a landing's window is lost as a whole)
     reseed_foot_deg: float = 15.0
