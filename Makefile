@@ -16,7 +16,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: venv demo test lint reproduce bench clean-venv
+.PHONY: venv demo test lint reproduce bench clean-venv ts-reader
 
 # The venv is (re)built only when the pinned requirements or the package metadata change.
 $(STAMP): requirements.txt setup.py setup.cfg package.xml
@@ -31,7 +31,17 @@ venv: $(STAMP)
 demo: venv
 	$(VENV)/bin/nmt demo --out demo_out
 
-test: venv
+# The independent TypeScript bag reader of test/test_ts_reader.py (@mcap/core, Foxglove's CDR),
+# pinned by its package-lock.json. Without npm the test is skipped (it says so).
+TS_READER := test/ts_reader
+$(TS_READER)/dist/read_bag.js: $(TS_READER)/package-lock.json $(TS_READER)/tsconfig.json $(TS_READER)/src/read_bag.ts
+	@if command -v npm >/dev/null; then \
+		cd $(TS_READER) && npm ci --no-audit --no-fund --loglevel=error && npx tsc -p .; \
+	else echo "npm not found: test/test_ts_reader.py will be skipped"; fi
+
+ts-reader: $(TS_READER)/dist/read_bag.js
+
+test: venv ts-reader
 	$(PY) -m pytest -q -p no:cacheprovider test
 
 lint: venv
