@@ -6,11 +6,10 @@ from dataclasses import dataclass
 import os
 from pathlib import Path
 import signal
-import subprocess
-import sys
 import threading
 import time
 
+from bag_writer_child import run_child_until_ready
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
@@ -297,35 +296,6 @@ def test_writer_refuses_existing_nonempty_path(tmp_bag):
 
 
 # --------------------------------------------------------------------------- crash safety
-
-CHILD = r'''
-import sys, time
-from msg_adapters.wrench import to_wrench_stamped
-from nmt_ros.io.bags import BagWriter, close_bags_on_sigterm
-close_bags_on_sigterm()
-with BagWriter(sys.argv[1], flush_period_s=0.02) as bag:
-    bag.add_topic('/w', 'geometry_msgs/msg/WrenchStamped')
-    i = 0
-    while True:
-        bag.write('/w', to_wrench_stamped(i * 925926, 'plate', [float(i), 0.0, 0.0]),
-                  i * 925926)
-        i += 1
-        if i == 500:
-            bag.flush()
-        if i > 500:
-            time.sleep(0.0005)
-        if i == 1500:
-            print('ready', flush=True)
-'''
-
-
-def run_child_until_ready(path: Path) -> subprocess.Popen:
-    child = subprocess.Popen([sys.executable, '-c', CHILD, str(path)], stdout=subprocess.PIPE,
-                             text=True)
-    line = child.stdout.readline()
-    assert line.strip() == 'ready', f'child failed before writing (rc={child.poll()})'
-    return child
-
 
 def recovered_force(path: Path) -> np.ndarray:
     with AnyReader([path]) as reader:

@@ -14,8 +14,10 @@ import json
 import math
 from pathlib import Path
 import shutil
+import signal
 import subprocess
 
+from bag_writer_child import run_child_until_ready
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
@@ -198,3 +200,22 @@ def test_the_shipped_routine_reads_in_typescript_with_metadata_counts():
     plate = ts['topics']['/force_plate/wrench']
     assert plate['count'] == 64801
     assert math.isfinite(_number(plate['sums']['force']))
+
+
+@pytest.mark.parametrize('how', ['SIGKILL, then reindex', 'SIGTERM'])
+def test_an_interrupted_recording_reads_in_typescript(tmp_path, how):
+    """A writer killed mid-recording and repaired by ``bags.reindex`` (every file rewritten
+    with its summary), or stopped by SIGTERM (closed by its handler): the TypeScript reader
+    reads every message the repaired or closed bag lists, in order (force.x = index)."""
+    path = tmp_path / 'interrupted'
+    child = run_child_until_ready(path)
+    child.send_signal(signal.SIGKILL if how.startswith('SIGKILL') else signal.SIGTERM)
+    child.wait(timeout=10)
+    info = bags.reindex(path) if how.startswith('SIGKILL') else bags.bag_info(path)
+    out = read_with_typescript(path)
+    w = out['topics']['/w']
+    n = info.message_count
+    assert n >= 1000 and w['count'] == n == sum(out['files'].values())
+    assert _number(w['sums']['force']) == n * (n - 1) / 2      # 0 + 1 + ... + n - 1, exact
+    assert w['first']['wrench']['force']['x'] == 0.0
+    assert int(w['stamp_ns_sum']) == 925926 * n * (n - 1) // 2
