@@ -32,7 +32,7 @@ demo: venv
 	$(VENV)/bin/nmt demo --out demo_out
 
 # The independent TypeScript bag reader of test/test_ts_reader.py (@mcap/core, Foxglove's CDR),
-# pinned by its package-lock.json. Without npm the test is skipped (it says so).
+# pinned by its package-lock.json. Without node or npm that test is skipped (it says so).
 TS_READER := test/ts_reader
 $(TS_READER)/dist/read_bag.js: $(TS_READER)/package-lock.json $(TS_READER)/tsconfig.json $(TS_READER)/src/read_bag.ts
 	@if command -v npm >/dev/null; then \

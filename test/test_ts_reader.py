@@ -39,6 +39,8 @@ def read_with_typescript(bag: Path) -> dict:
     if shutil.which('node') is None:
         pytest.skip('node is not installed: the TypeScript reader cannot run')
     if not READER.exists():
+        if shutil.which('npm') is None:
+            pytest.skip('npm is not installed: the TypeScript reader cannot be built')
         pytest.fail(f'{READER} is missing: build it with `make ts-reader` (npm ci + tsc)')
     done = subprocess.run(['node', str(READER), str(bag)], capture_output=True, text=True,
                           timeout=300)
