@@ -13,6 +13,7 @@ import time
 from conftest import batch_samples
 from process_groups import children, kill_group, popen_group, running
 import pytest
+from typescript_reader import read_with_typescript
 
 from nmt_ros.io.bags import bag_info, read_raw, reindex
 
@@ -68,6 +69,12 @@ def test_launch_processes_the_replay_and_records_everything(tmp_path, rate):
     assert 0 < lat['joint_torques']['p50_ms'] < lat['muscle_forces']['p50_ms']
     params = (tmp_path / 'logs' / 'params.yaml').read_text()
     assert 'expected_subscribers: 2' in params and f'rate: {rate}' in params
+    # the live recording as a TypeScript consumer reads it (test_ts_reader.py): every
+    # message metadata.yaml counts, every data topic as recorded
+    ts = read_with_typescript(record)
+    assert ts['metadata']['topics'] == {t: v['count'] for t, v in ts['topics'].items()}
+    assert {t: ts['topics'][t]['count'] for t in counts} == {
+        t: c['recorded'] for t, c in counts.items()}
     if env:
         for node in ('observation_publisher', 'skeletal_tracker', 'muscle_tracker',
                      'recorder'):

@@ -10,17 +10,15 @@ and the first message of each topic.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
-import shutil
 import signal
-import subprocess
 
 from bag_writer_child import run_child_until_ready
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
+from typescript_reader import read_with_typescript
 import yaml
 
 from msg_adapters.diagnostics import StatusRecord, to_diagnostic_array
@@ -29,23 +27,8 @@ from msg_adapters.wrench import wrenches_from_arrays
 from nmt_ros.io import bags
 
 ROOT = Path(__file__).resolve().parents[1]
-READER = ROOT / 'test' / 'ts_reader' / 'dist' / 'read_bag.js'
 T0 = 1_700_000_000_000_000_000
 JOINTS = ('ankle', 'knee', 'hip')
-
-
-def read_with_typescript(bag: Path) -> dict:
-    """The TypeScript reader's summary of ``bag`` (see ``test/ts_reader/src/read_bag.ts``)."""
-    if shutil.which('node') is None:
-        pytest.skip('node is not installed: the TypeScript reader cannot run')
-    if not READER.exists():
-        if shutil.which('npm') is None:
-            pytest.skip('npm is not installed: the TypeScript reader cannot be built')
-        pytest.fail(f'{READER} is missing: build it with `make ts-reader` (npm ci + tsc)')
-    done = subprocess.run(['node', str(READER), str(bag)], capture_output=True, text=True,
-                          timeout=300)
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
 
 
 def _number(value: float | str) -> float:
