@@ -16,6 +16,7 @@ from mcap.reader import make_reader
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
+from typescript_reader import read_with_typescript
 import yaml
 
 from msg_adapters.cdr_header import header_stamp_ns, header_stamps_ns, with_header_stamp
@@ -333,6 +334,9 @@ def test_recorder_at_4x_beside_a_cpu_hog_records_every_message(tmp_path, tmp_bag
         for conn, _, _ in reader.messages():
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
     assert {t: counts[t] for t in announced} == announced
+    ts = read_with_typescript(record)            # the split recording, read in TypeScript
+    assert tuple(ts['files']) == info.relative_file_paths
+    assert {t: ts['topics'][t]['count'] for t in announced} == announced
 
 
 @pytest.mark.ros
