@@ -136,9 +136,9 @@ def _rosbags_summary(bag: Path) -> dict:
             row = out.setdefault(conn.topic, {'type': conn.msgtype, 'count': 0, 'stamps': 0,
                                              'values': {}, 'first': msg})
             row['count'] += 1
-            stamp = getattr(msg, 'header', None)
-            if stamp is not None:
-                row['stamps'] += stamp.stamp.sec * 10**9 + stamp.stamp.nanosec
+            header = getattr(msg, 'header', None)
+            if header is not None:
+                row['stamps'] += header.stamp.sec * 10**9 + header.stamp.nanosec
             if conn.msgtype == 'sensor_msgs/msg/JointState':
                 fields = {f: getattr(msg, f) for f in ('position', 'velocity', 'effort')}
             elif conn.msgtype == 'geometry_msgs/msg/WrenchStamped':
