@@ -36,7 +36,8 @@ demo: venv
 TS_READER := test/ts_reader
 $(TS_READER)/dist/read_bag.js: $(TS_READER)/package-lock.json $(TS_READER)/tsconfig.json $(TS_READER)/src/read_bag.ts
 	@if command -v npm >/dev/null; then \
-		cd $(TS_READER) && npm ci --no-audit --no-fund --loglevel=error && npx tsc -p .; \
+		(cd $(TS_READER) && npm ci --no-audit --no-fund --loglevel=error && npx tsc -p .) \
+		|| echo "the TypeScript reader did not build: its tests will fail, the rest runs"; \
 	else echo "npm not found: test/test_ts_reader.py will be skipped"; fi
 
 ts-reader: $(TS_READER)/dist/read_bag.js
