@@ -11,9 +11,9 @@ latency p50 / p99 and the refined coverage, so that each comparison is between n
 time, with the CPU time of a fixed workload taken just before and after each run (the
 machine's speed then; ``SPEED_PROBE``). ``--before`` is checked out into a temporary git
 worktree and run with this checkout's virtual environment (its modules first on
-``PYTHONPATH``); ``--after`` ``HEAD`` is this checkout
-as it is (uncommitted changes included). Each demo gets its own ``ROS_DOMAIN_ID``; nothing else
-of ours should run meanwhile. The load average before each run is printed with it.
+``PYTHONPATH``); ``--after`` ``HEAD`` is this checkout as it is (uncommitted changes
+included). Each demo gets its own ``ROS_DOMAIN_ID``; nothing else of ours should run
+meanwhile. The load average before each run is printed with it.
 """
 from __future__ import annotations
 
@@ -28,10 +28,11 @@ import tempfile
 ROOT = Path(__file__).resolve().parents[1]
 
 
-#: A fixed CPU workload (banded-size dense solves and a pure-Python loop, like the trackers'),
-#: its CPU time printed with each run: this VM's speed changes by the run (the same code's
-#: skeletal tracker took 35 and 45 CPU s in two demos 15 min apart), and the probe, taken just
-#: before and just after a demo, says whether the machine was slow then.
+#: A fixed CPU workload (dense 120 x 120 solves and a pure-Python loop: LAPACK and the
+#: interpreter, as in the trackers), its CPU time printed with each run: this VM's speed
+#: changes by the run (the same code's skeletal tracker took 35 and 45 CPU s in two demos 15
+#: min apart), and the probe, taken just before and just after a demo, says whether the
+#: machine was slow then.
 SPEED_PROBE = """
 import time
 import numpy as np
